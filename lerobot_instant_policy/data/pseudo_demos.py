@@ -1,0 +1,266 @@
+"""Replaying a pseudo-task as rendered pseudo-demonstrations.
+
+Each demonstration puts the task's two objects at new poses and the gripper at a new start pose, moves the
+gripper through the task's waypoints (fixed in the objects' initial frames), attaches the nearest object
+within reach when the gripper closes and releases it when it opens, and renders a segmented cloud per frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..geometry.sampling import resample_indices
+from ..geometry.se3 import invert, look_rotation, make_pose, pose_to_pos_quat, transform_points
+from .objects import ObjectModel
+from .pseudo_tasks import GRASP_REACH, PseudoTask, Waypoint
+from .rendering import PointCloudRenderer
+from .trajectory import (
+    Step,
+    add_disturbance,
+    add_gripper_faults,
+    interpolate_cubic,
+    interpolate_linear,
+    interpolate_spherical,
+    resample_uniform,
+    steps_from_states,
+)
+
+
+class GenerationError(RuntimeError):
+    """A pseudo-demonstration could not be made (e.g. every resampled scene left the cameras' view)."""
+
+
+@dataclass
+class DemoConfig:
+    """How one pseudo-demonstration is laid out, moved, augmented and observed."""
+
+    num_points: int = 2048
+    object_x_range: tuple[float, float] = (0.38, 0.62)
+    object_y_range: tuple[float, float] = (-0.22, 0.22)
+    object_clearance: float = 0.02
+    start_x_range: tuple[float, float] = (0.3, 0.6)
+    start_y_range: tuple[float, float] = (-0.25, 0.25)
+    start_z_range: tuple[float, float] = (0.22, 0.4)
+    start_max_tilt_deg: float = 25.0
+    disturbance_probability: float = 0.3
+    gripper_fault_fraction: float = 0.1
+    max_scene_attempts: int = 25
+
+
+@dataclass
+class SceneLayout:
+    """Initial object poses ``T_world_objects (2, 4, 4)`` and the gripper's start pose ``T_world_ee (4, 4)``."""
+
+    T_world_objects: np.ndarray
+    T_world_ee_start: np.ndarray
+
+
+@dataclass
+class PseudoDemo:
+    """One rendered demonstration (``F`` frames, ``P`` points), in the data contract's layout.
+
+    ``points (F, P, 3)`` world frame; ``state (F, 8)`` and ``action (F, 8)`` are xyz, quaternion xyzw,
+    gripper_open. Ground truth kept for tests and previews: ``point_labels (F, P)`` object index of each point,
+    ``T_world_objects (F, 2, 4, 4)``, ``held_object (F,)`` (−1 when nothing is held), and
+    ``waypoint_frames``, the frame at which each waypoint is reached.
+    """
+
+    task: PseudoTask
+    layout: SceneLayout
+    points: np.ndarray
+    point_labels: np.ndarray
+    state: np.ndarray
+    action: np.ndarray
+    T_world_objects: np.ndarray
+    held_object: np.ndarray
+    waypoint_frames: list[int] = field(default_factory=list)
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.state)
+
+
+def sample_layout(objects: list[ObjectModel], rng: np.random.Generator, config: DemoConfig) -> SceneLayout:
+    """Two non-overlapping objects on the table with random yaw, and a random top-down-ish start pose."""
+    for _ in range(100):
+        positions = np.stack(
+            [
+                [rng.uniform(*config.object_x_range), rng.uniform(*config.object_y_range), 0.0]
+                for _ in objects
+            ]
+        )
+        gap = np.linalg.norm(positions[0, :2] - positions[1, :2])
+        if gap > objects[0].footprint_radius + objects[1].footprint_radius + config.object_clearance:
+            break
+    else:
+        positions[1, 1] = positions[0, 1] + np.sign(rng.normal()) * (
+            objects[0].footprint_radius + objects[1].footprint_radius + config.object_clearance
+        )
+    T_world_objects = np.stack(
+        [make_pose(position, Rotation.from_euler("z", rng.uniform(-np.pi, np.pi))) for position in positions]
+    )
+    tilt_axis = rng.normal(size=3)
+    tilt_axis[2] = 0.0
+    tilt_axis /= np.linalg.norm(tilt_axis)
+    tilt = Rotation.from_rotvec(tilt_axis * np.deg2rad(rng.uniform(0.0, config.start_max_tilt_deg)))
+    approach = tilt.apply([0.0, 0.0, -1.0])
+    start = make_pose(
+        [rng.uniform(*config.start_x_range), rng.uniform(*config.start_y_range), rng.uniform(*config.start_z_range)],
+        look_rotation(approach, rng.uniform(-np.pi / 2, np.pi / 2)),
+    )
+    return SceneLayout(T_world_objects, start)
+
+
+def reference_path(task: PseudoTask, layout: SceneLayout) -> tuple[list[np.ndarray], list[bool], list[int]]:
+    """The undisturbed path: uniformly spaced poses, gripper states, and the frame index of each waypoint.
+
+    A gripper change at a waypoint adds one frame at the same pose with the new state.
+    """
+    poses = [layout.T_world_ee_start]
+    grippers = [True]
+    waypoint_frames = []
+    for waypoint in task.waypoints:
+        T_world_anchor = layout.T_world_objects[waypoint.anchor]
+        target = T_world_anchor @ waypoint.T_anchor_ee
+        dense = _segment(poses[-1], target, waypoint, T_world_anchor)
+        resampled = resample_uniform(dense)
+        resampled[-1] = target
+        poses.extend(resampled[1:])
+        grippers.extend([grippers[-1]] * (len(resampled) - 1))
+        waypoint_frames.append(len(poses) - 1)
+        if waypoint.gripper_open != grippers[-1]:
+            poses.append(target)
+            grippers.append(waypoint.gripper_open)
+    return poses, grippers, waypoint_frames
+
+
+def track_objects(
+    steps: list[Step], objects: list[ObjectModel], layout: SceneLayout
+) -> tuple[np.ndarray, np.ndarray]:
+    """Object poses per frame ``(F, 2, 4, 4)`` and the held object per frame ``(F,)``.
+
+    When the observed gripper goes from open to closed, the object whose surface is nearest the TCP is attached
+    if it lies within ``GRASP_REACH``; it then moves rigidly with the EE until the gripper opens. Gripper-fault
+    frames leave the held object as it is (the EE does not move during them).
+    """
+    current = layout.T_world_objects.copy()
+    poses = np.zeros((len(steps), len(objects), 4, 4))
+    held = np.full(len(steps), -1, dtype=np.int8)
+    holding, T_ee_object = -1, None
+    previous_open = True
+    for index, step in enumerate(steps):
+        if step.gripper_fault:
+            poses[index] = current
+            held[index] = holding
+            continue
+        if previous_open and not step.gripper_open:
+            holding = _nearest_within_reach(step.T_world_ee, objects, current)
+            if holding >= 0:
+                T_ee_object = invert(step.T_world_ee) @ current[holding]
+        elif not previous_open and step.gripper_open:
+            holding = -1
+        if holding >= 0:
+            current[holding] = step.T_world_ee @ T_ee_object
+        previous_open = step.gripper_open
+        poses[index] = current
+        held[index] = holding
+    return poses, held
+
+
+def hold_signature(task: PseudoTask, layout: SceneLayout, objects: list[ObjectModel]) -> tuple[int, ...]:
+    """Which object is held after each waypoint's gripper command on the undisturbed path (−1 for none)."""
+    poses, grippers, waypoint_frames = reference_path(task, layout)
+    _, held = track_objects(steps_from_states(poses, grippers), objects, layout)
+    return tuple(int(held[min(frame + 1, len(held) - 1)]) for frame in waypoint_frames)
+
+
+def make_demo(
+    task: PseudoTask,
+    objects: list[ObjectModel],
+    renderer: PointCloudRenderer,
+    rng: np.random.Generator,
+    config: DemoConfig,
+    expected_signature: tuple[int, ...] | None = None,
+) -> PseudoDemo:
+    """Render one demonstration of ``task``; scenes are resampled until one fits.
+
+    A scene fits when every frame's cloud has points and, if ``expected_signature`` is given, the same objects
+    get grasped at the same waypoints as in the task's other demonstrations.
+    """
+    renderer.set_objects(objects)
+    reasons = []
+    for _ in range(config.max_scene_attempts):
+        layout = sample_layout(objects, rng, config)
+        if expected_signature is not None and hold_signature(task, layout, objects) != expected_signature:
+            reasons.append("grasps differ from the task's other demonstrations")
+            continue
+        poses, grippers, waypoint_frames = reference_path(task, layout)
+        if rng.random() < config.disturbance_probability:
+            steps = add_disturbance(poses, grippers, rng)
+        else:
+            steps = steps_from_states(poses, grippers)
+        steps = add_gripper_faults(steps, config.gripper_fault_fraction, rng)
+        T_world_objects, held = track_objects(steps, objects, layout)
+        demo = _render(task, layout, steps, T_world_objects, held, renderer, rng, config)
+        if demo is None:
+            reasons.append("a frame had no object in view")
+            continue
+        demo.waypoint_frames = waypoint_frames
+        return demo
+    raise GenerationError(
+        f"task {task.task_id}: no valid scene in {config.max_scene_attempts} attempts "
+        f"({', '.join(sorted(set(reasons)))})"
+    )
+
+
+def _render(
+    task: PseudoTask,
+    layout: SceneLayout,
+    steps: list[Step],
+    T_world_objects: np.ndarray,
+    held: np.ndarray,
+    renderer: PointCloudRenderer,
+    rng: np.random.Generator,
+    config: DemoConfig,
+) -> PseudoDemo | None:
+    frames = len(steps)
+    points = np.zeros((frames, config.num_points, 3), dtype=np.float32)
+    labels = np.zeros((frames, config.num_points), dtype=np.int8)
+    for index, step in enumerate(steps):
+        cloud, cloud_labels = renderer.render(list(T_world_objects[index]), step.T_world_ee, step.gripper_open)
+        if len(cloud) == 0:
+            return None
+        chosen = resample_indices(cloud, config.num_points, rng)
+        points[index] = cloud[chosen]
+        labels[index] = cloud_labels[chosen]
+    state = np.stack([_pose_vector(step.T_world_ee, step.gripper_open) for step in steps])
+    action = np.stack([_pose_vector(step.action_T_world_ee, step.action_gripper_open) for step in steps])
+    return PseudoDemo(task, layout, points, labels, state, action, T_world_objects, held)
+
+
+def _pose_vector(T_world_ee: np.ndarray, gripper_open: bool) -> np.ndarray:
+    position, quat = pose_to_pos_quat(T_world_ee)
+    return np.concatenate([position, quat, [1.0 if gripper_open else 0.0]]).astype(np.float32)
+
+
+def _nearest_within_reach(T_world_ee: np.ndarray, objects: list[ObjectModel], T_world_objects: np.ndarray) -> int:
+    tcp = T_world_ee[:3, 3]
+    distances = [
+        np.linalg.norm(transform_points(pose, model.surface_points) - tcp, axis=1).min()
+        for model, pose in zip(objects, T_world_objects, strict=True)
+    ]
+    nearest = int(np.argmin(distances))
+    return nearest if distances[nearest] <= GRASP_REACH else -1
+
+
+def _segment(T_start: np.ndarray, T_end: np.ndarray, waypoint: Waypoint, T_world_anchor: np.ndarray) -> np.ndarray:
+    if waypoint.interpolation == "cubic":
+        length = np.linalg.norm(T_end[:3, 3] - T_start[:3, 3])
+        offsets = (waypoint.control_offsets * length) @ T_world_anchor[:3, :3].T
+        return interpolate_cubic(T_start, T_end, offsets)
+    if waypoint.interpolation == "spherical":
+        return interpolate_spherical(T_start, T_end, transform_points(T_world_anchor, waypoint.center[None])[0])
+    return interpolate_linear(T_start, T_end)

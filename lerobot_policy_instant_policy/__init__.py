@@ -1,0 +1,1 @@
+import lerobot_instant_policy  # noqa: F401
