@@ -1,0 +1,7 @@
+"""Instant Policy (Vosylius & Johns, ICLR 2025) as a LeRobot policy plugin.
+
+Subpackages: ``geometry`` (SE(3), point sampling), ``data`` (object library, pseudo-demonstrations, LeRobot
+datasets), ``cli`` (``lerobot-ip-*`` commands).
+"""
+
+__version__ = "0.1.0"

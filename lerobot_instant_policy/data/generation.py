@@ -20,13 +20,14 @@ import numpy as np
 
 from .lerobot_format import DEFAULT_FPS, create_dataset, keep_array_types_while_aggregating, write_episode
 from .objects import load_object, object_ids, validate_object_id
-from .pseudo_demos import DemoConfig, hold_signature, make_demo
+from .pseudo_demos import DemoConfig, GenerationError, hold_signature, make_demo
 from .pseudo_tasks import PseudoTask, sample_pseudo_task
 from .rendering import PointCloudRenderer, RenderConfig
 
 SHARDS_DIR = ".shards"
 PLAN_FILE = "plan.json"
 TASKS_FILE = "pseudo_tasks.jsonl"
+DEMOS_FILE = "pseudo_demos.jsonl"
 
 
 @dataclass
@@ -78,19 +79,29 @@ def task_name(seed: int, task_index: int) -> str:
 
 
 def generate_task(
-    config: GenerationConfig, task_index: int, renderer: PointCloudRenderer
+    config: GenerationConfig, task_index: int, renderer: PointCloudRenderer, max_task_attempts: int = 10
 ) -> tuple[PseudoTask, list]:
-    """Sample task ``task_index`` of ``config`` and render its ``demos_per_task`` demonstrations."""
+    """Sample task ``task_index`` of ``config`` and render its ``demos_per_task`` demonstrations.
+
+    A task none of whose scenes fits (see ``make_demo``) is replaced by a new draw from the same random stream.
+    """
     rng = np.random.default_rng([config.seed, task_index])
     pool = config.pool()
-    chosen = rng.choice(len(pool), size=2, replace=False)
-    objects = [load_object(pool[index]) for index in chosen]
-    task = sample_pseudo_task(task_name(config.seed, task_index), objects, rng, config.biased_fraction)
-    demos = [make_demo(task, objects, renderer, rng, config.demo)]
-    signature = hold_signature(task, demos[0].layout, objects)
-    for _ in range(config.demos_per_task - 1):
-        demos.append(make_demo(task, objects, renderer, rng, config.demo, signature))
-    return task, demos
+    errors = []
+    for _ in range(max_task_attempts):
+        chosen = rng.choice(len(pool), size=2, replace=False)
+        objects = [load_object(pool[index]) for index in chosen]
+        task = sample_pseudo_task(task_name(config.seed, task_index), objects, rng, config.biased_fraction)
+        try:
+            demos = [make_demo(task, objects, renderer, rng, config.demo)]
+            signature = hold_signature(task, demos[0].layout, objects)
+            for _ in range(config.demos_per_task - 1):
+                demos.append(make_demo(task, objects, renderer, rng, config.demo, signature))
+        except GenerationError as error:
+            errors.append(str(error))
+            continue
+        return task, demos
+    raise GenerationError(f"task {task_index}: {max_task_attempts} draws failed; last: {errors[-1]}")
 
 
 def task_record(task: PseudoTask) -> dict:
@@ -111,6 +122,16 @@ def task_record(task: PseudoTask) -> dict:
     }
 
 
+def demo_record(task: PseudoTask, demo) -> dict:
+    """JSON-ready scene of one demonstration (written to ``meta/pseudo_demos.jsonl``, one line per episode)."""
+    return {
+        "task": task.task_id,
+        "num_frames": demo.num_frames,
+        "T_world_objects": np.round(demo.layout.T_world_objects, 6).tolist(),
+        "T_world_ee_start": np.round(demo.layout.T_world_ee_start, 6).tolist(),
+    }
+
+
 def shard_ranges(config: GenerationConfig) -> list[range]:
     return [
         range(start, min(start + config.tasks_per_shard, config.num_tasks))
@@ -128,17 +149,19 @@ def generate_shard(config: GenerationConfig, shard_index: int, tasks: range, on_
     if partial.exists():
         shutil.rmtree(partial)
     dataset = create_dataset(f"{config.repo_id}-shard-{shard_index:05d}", partial, config.fps, config.demo.num_points)
-    records = []
+    task_records, demo_records = [], []
     with PointCloudRenderer(config.render) as renderer:
         for task_index in tasks:
             task, demos = generate_task(config, task_index, renderer)
             for demo in demos:
                 write_episode(dataset, demo.points, demo.state, demo.action, task.task_id)
+                demo_records.append(demo_record(task, demo))
                 if on_episode is not None:
                     on_episode()
-            records.append(task_record(task))
+            task_records.append(task_record(task))
     dataset.finalize()
-    (partial / "meta" / TASKS_FILE).write_text("".join(json.dumps(record) + "\n" for record in records))
+    for name, records in ((TASKS_FILE, task_records), (DEMOS_FILE, demo_records)):
+        (partial / "meta" / name).write_text("".join(json.dumps(record) + "\n" for record in records))
     partial.rename(final)
     return final
 
@@ -169,7 +192,8 @@ def prepare_output(config: GenerationConfig, overwrite: bool, resume: bool) -> N
 
 
 def merge_shards(config: GenerationConfig, keep_shards: bool = False) -> Path:
-    """Aggregate all shards (in order) into ``config.out`` and write ``meta/pseudo_tasks.jsonl``."""
+    """Aggregate all shards (in order) into ``config.out``, with ``meta/pseudo_tasks.jsonl`` (one line per task)
+    and ``meta/pseudo_demos.jsonl`` (one line per episode, in episode order)."""
     import pyarrow.parquet as pq
     from lerobot.datasets.aggregate import aggregate_datasets
 
@@ -193,8 +217,8 @@ def merge_shards(config: GenerationConfig, keep_shards: bool = False) -> Path:
             aggr_root=merged,
             concatenate_data=False,
         )
-    records = "".join((path / "meta" / TASKS_FILE).read_text() for path in shard_dirs)
-    (merged / "meta" / TASKS_FILE).write_text(records)
+    for name in (TASKS_FILE, DEMOS_FILE):
+        (merged / "meta" / name).write_text("".join((path / "meta" / name).read_text() for path in shard_dirs))
     (merged / "data").rename(out / "data")
     (merged / "meta").rename(out / "meta")
     shutil.rmtree(merged)

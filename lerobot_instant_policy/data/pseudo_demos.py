@@ -48,6 +48,7 @@ class DemoConfig:
     disturbance_probability: float = 0.3
     gripper_fault_fraction: float = 0.1
     max_scene_attempts: int = 25
+    min_height: float = -0.005
 
 
 @dataclass
@@ -144,7 +145,7 @@ def track_objects(
 
     When the observed gripper goes from open to closed, the object whose surface is nearest the TCP is attached
     if it lies within ``GRASP_REACH``; it then moves rigidly with the EE until the gripper opens. Gripper-fault
-    frames leave the held object as it is (the EE does not move during them).
+    frames never attach or release: what is held stays held and keeps following the EE.
     """
     current = layout.T_world_objects.copy()
     poses = np.zeros((len(steps), len(objects), 4, 4))
@@ -153,6 +154,8 @@ def track_objects(
     previous_open = True
     for index, step in enumerate(steps):
         if step.gripper_fault:
+            if holding >= 0:
+                current[holding] = step.T_world_ee @ T_ee_object
             poses[index] = current
             held[index] = holding
             continue
@@ -187,8 +190,9 @@ def make_demo(
 ) -> PseudoDemo:
     """Render one demonstration of ``task``; scenes are resampled until one fits.
 
-    A scene fits when every frame's cloud has points and, if ``expected_signature`` is given, the same objects
-    get grasped at the same waypoints as in the task's other demonstrations.
+    A scene fits when every frame's cloud has points, neither the gripper nor an object goes below the table
+    (``min_height``) and, if ``expected_signature`` is given, the same objects get grasped at the same waypoints
+    as in the task's other demonstrations.
     """
     renderer.set_objects(objects)
     reasons = []
@@ -199,16 +203,22 @@ def make_demo(
             continue
         poses, grippers, waypoint_frames = reference_path(task, layout)
         if rng.random() < config.disturbance_probability:
-            steps = add_disturbance(poses, grippers, rng)
+            steps = add_disturbance(poses, grippers, rng, keep_frames=waypoint_frames)
         else:
             steps = steps_from_states(poses, grippers)
         steps = add_gripper_faults(steps, config.gripper_fault_fraction, rng)
         T_world_objects, held = track_objects(steps, objects, layout)
+        if min(step.T_world_ee[2, 3] for step in steps) < config.min_height:
+            reasons.append("the gripper went below the table")
+            continue
         demo = _render(task, layout, steps, T_world_objects, held, renderer, rng, config)
         if demo is None:
             reasons.append("a frame had no object in view")
             continue
-        demo.waypoint_frames = waypoint_frames
+        if demo.points[..., 2].min() < config.min_height:
+            reasons.append("an object went below the table")
+            continue
+        demo.waypoint_frames = _frames_of(steps, [poses[frame] for frame in waypoint_frames])
         return demo
     raise GenerationError(
         f"task {task.task_id}: no valid scene in {config.max_scene_attempts} attempts "
@@ -239,6 +249,16 @@ def _render(
     state = np.stack([_pose_vector(step.T_world_ee, step.gripper_open) for step in steps])
     action = np.stack([_pose_vector(step.action_T_world_ee, step.action_gripper_open) for step in steps])
     return PseudoDemo(task, layout, points, labels, state, action, T_world_objects, held)
+
+
+def _frames_of(steps: list[Step], waypoint_poses: list[np.ndarray]) -> list[int]:
+    """Indices of the (non-fault) steps that reach ``waypoint_poses``, in order, after augmentation."""
+    frames, index = [], 0
+    for pose in waypoint_poses:
+        while steps[index].gripper_fault or steps[index].T_world_ee is not pose:
+            index += 1
+        frames.append(index)
+    return frames
 
 
 def _pose_vector(T_world_ee: np.ndarray, gripper_open: bool) -> np.ndarray:

@@ -227,7 +227,8 @@ def _press(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoin
 def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
     """2–6 waypoints on or near random objects, random orientations and interpolations, ≥ 1 gripper change.
 
-    After the gripper closes, later waypoints anchor to the other object (a held object moves with the gripper).
+    After the gripper closes, later waypoints anchor to the other object (a held object moves with the gripper)
+    and stay higher than the grasp, so that what is held is not pushed into the table.
     """
     count = int(rng.integers(2, 7))
     gripper = [bool(state) for state in rng.random(count) > 0.4]
@@ -236,9 +237,11 @@ def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator) -> l
     anchor = int(rng.integers(2))
     waypoints = []
     previous_open = True
+    min_height = 0.01
     for index in range(count):
-        point, normal = _surface_point(objects[anchor], rng)
+        point, normal = _surface_point(objects[anchor], rng, (-0.3, 1.0))
         position = point + normal * rng.uniform(-0.01, 0.08)
+        position[2] = max(position[2], min_height)
         approach = _approach(normal, rng, rng.uniform(0.2, 1.0))
         pose = make_pose(position, look_rotation(approach, rng.uniform(-np.pi, np.pi)))
         kind = str(rng.choice(INTERPOLATIONS))
@@ -246,6 +249,7 @@ def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator) -> l
         waypoints.append(Waypoint(anchor, pose, gripper[index], kind, _bezier(rng), center))
         if previous_open and not gripper[index]:
             anchor = 1 - anchor
+            min_height = position[2] + 0.02
         previous_open = gripper[index]
     return waypoints
 

@@ -44,7 +44,7 @@ def default_cameras() -> list[CameraConfig]:
 @dataclass
 class RenderConfig:
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
-    max_crop_pixels: int = 128
+    max_crop_pixels: int = 80
     gripper_occludes: bool = True
 
 

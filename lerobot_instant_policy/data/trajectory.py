@@ -6,6 +6,7 @@ EE pose and gripper state of a frame, and the action commanded from it (next pos
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,17 +121,24 @@ def add_disturbance(
     grippers: list[bool],
     rng: np.random.Generator,
     max_kicks: int = 5,
+    keep_frames: Sequence[int] = (),
 ) -> list[Step]:
     """A local disturbance: the EE is pushed off the reference for a few frames, then actions bring it back.
 
     During the push the actions command a bounded step back toward the reference, but the observed pose drifts
     by a kick of at most one step size; afterwards a recovery path rejoins the reference a few frames ahead.
-    Consecutive observed poses stay within the step bounds.
+    Consecutive observed poses stay within the step bounds. Frames in ``keep_frames`` (the waypoints) are never
+    skipped: the disturbance happens between them.
     """
-    if len(poses) < 8:
-        return steps_from_states(poses, grippers)
-    start = int(rng.integers(1, len(poses) - 6))
     kicks = int(rng.integers(2, max_kicks + 1))
+    starts = [
+        start
+        for start in range(1, len(poses) - kicks - 4)
+        if not any(start - 1 <= frame <= start + kicks + 3 for frame in keep_frames)
+    ]
+    if not starts:
+        return steps_from_states(poses, grippers)
+    start = int(rng.choice(starts))
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)
     axis = rng.normal(size=3)

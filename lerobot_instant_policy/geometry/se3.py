@@ -48,10 +48,14 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
-    """Geodesic angle in radians between rotation matrices ``(..., 3, 3)``."""
+    """Geodesic angle in radians between rotation matrices ``(..., 3, 3)`` (atan2 form: accurate near 0 and π)."""
     relative = np.swapaxes(rot_a, -1, -2) @ rot_b
-    cos = (np.trace(relative, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+    cos = np.trace(relative, axis1=-2, axis2=-1) - 1.0
+    skew = np.stack(
+        [relative[..., 2, 1] - relative[..., 1, 2], relative[..., 0, 2] - relative[..., 2, 0], relative[..., 1, 0] - relative[..., 0, 1]],
+        axis=-1,
+    )
+    return np.arctan2(np.linalg.norm(skew, axis=-1), cos)
 
 
 def pose_distance(pose_a: np.ndarray, pose_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

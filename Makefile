@@ -1,0 +1,27 @@
+# `make demo` and `make test` create .venv with python3.12 and install the package on first use.
+PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bin/python3.12 /usr/bin/python3.12 /usr/local/bin/python3.12; do \
+	"$$candidate" --version >/dev/null 2>&1 && { echo "$$candidate"; break; }; done)
+VENV := .venv
+INSTALLED := $(VENV)/.installed
+
+.PHONY: demo test install clean
+
+install: $(INSTALLED)
+
+$(INSTALLED): pyproject.toml
+	@test -n "$(PYTHON312)" || { echo "error: python3.12 not found (LeRobot 0.6 needs Python 3.12)"; exit 1; }
+	test -x $(VENV)/bin/python || $(PYTHON312) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --upgrade pip
+	$(VENV)/bin/pip install --quiet -e '.[dev]'
+	touch $(INSTALLED)
+
+demo: $(INSTALLED)
+	$(VENV)/bin/lerobot-ip-generate --config configs/generate/default.json --overwrite \
+		--preview outputs/pseudo_demos_preview.png
+
+# CI=true skips tests marked slow.
+test: $(INSTALLED)
+	$(VENV)/bin/python -m pytest -q $(if $(filter true,$(CI)),-m "not slow",)
+
+clean:
+	rm -rf outputs .pytest_cache

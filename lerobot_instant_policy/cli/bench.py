@@ -1,0 +1,85 @@
+"""``lerobot-ip-bench``: measured speed of the project's parts, printed as JSON.
+
+``lerobot-ip-bench generate``: rendered pseudo-demonstration frames per second, for one worker process and for
+``--workers`` processes at once (medians over ``--repeats`` runs), and demonstrations per second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import statistics
+import sys
+import time
+
+
+def _generate_worker(job: tuple[int, int, int]) -> tuple[int, int, float]:
+    """Generate ``tasks`` pseudo-tasks of seed ``seed`` from ``first``; returns (frames, demos, seconds)."""
+    seed, first, tasks = job
+    from ..data.generation import GenerationConfig, generate_task
+    from ..data.rendering import PointCloudRenderer
+
+    config = GenerationConfig(seed=seed, demos_per_task=2)
+    frames = demos = 0
+    with PointCloudRenderer(config.render) as renderer:
+        generate_task(config, first, renderer)
+        start = time.perf_counter()
+        for task_index in range(first + 1, first + 1 + tasks):
+            _, rendered = generate_task(config, task_index, renderer)
+            frames += sum(demo.num_frames for demo in rendered)
+            demos += len(rendered)
+    return frames, demos, time.perf_counter() - start
+
+
+def bench_generate(tasks: int, workers: int, repeats: int) -> dict:
+    """Frames/s and demos/s of rendering pseudo-demonstrations (sampling, replay, rendering, resampling)."""
+    context = multiprocessing.get_context("spawn")
+    single, parallel, parallel_demos, single_demos = [], [], [], []
+    with context.Pool(workers) as pool:
+        for repeat in range(repeats):
+            frames, demos, seconds = pool.apply(_generate_worker, ((repeat, 0, tasks),))
+            single.append(frames / seconds)
+            single_demos.append(demos / seconds)
+            start = time.perf_counter()
+            results = pool.map(_generate_worker, [(repeat, 1000 * worker, tasks) for worker in range(workers)])
+            wall = time.perf_counter() - start
+            parallel.append(sum(result[0] for result in results) / wall)
+            parallel_demos.append(sum(result[1] for result in results) / wall)
+    return {
+        "benchmark": "generate",
+        "tasks_per_run": tasks,
+        "demos_per_task": 2,
+        "repeats": repeats,
+        "cpu_count": os.cpu_count(),
+        "frames_per_s_one_worker": round(statistics.median(single), 1),
+        "demos_per_s_one_worker": round(statistics.median(single_demos), 3),
+        "workers": workers,
+        "frames_per_s_total": round(statistics.median(parallel), 1),
+        "frames_per_s_per_worker": round(statistics.median(parallel) / workers, 1),
+        "demos_per_s_total": round(statistics.median(parallel_demos), 3),
+        "runs_frames_per_s_one_worker": [round(value, 1) for value in single],
+        "runs_frames_per_s_total": [round(value, 1) for value in parallel],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lerobot-ip-bench", description="Benchmarks that print JSON.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    generate = commands.add_parser("generate", help="pseudo-demonstration rendering speed")
+    generate.add_argument("--tasks", type=int, default=3, help="pseudo-tasks (2 demos each) per worker and run")
+    generate.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    generate.add_argument("--repeats", type=int, default=3)
+    generate.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    args = parser.parse_args(argv)
+    if args.command == "generate":
+        if min(args.tasks, args.workers, args.repeats) <= 0:
+            parser.error("--tasks, --workers and --repeats must be positive")
+        result = bench_generate(args.tasks, args.workers, args.repeats)
+    print(json.dumps(result, indent=None if args.json else 2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

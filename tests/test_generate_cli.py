@@ -1,0 +1,223 @@
+"""The generator end to end: ``lerobot-ip-generate`` writes a LeRobotDataset that honours DESIGN §4 and §7."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from lerobot_instant_policy.cli.generate import main as generate_main
+from lerobot_instant_policy.data.lerobot_format import POSE_GRIPPER_NAMES
+from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
+
+REPO_ID = "local/test_pseudo"
+
+
+def _generate(out, *extra: str) -> int:
+    return generate_main(["--out", str(out), "--repo-id", REPO_ID, "--no-progress", *extra])
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gen") / "pseudo"
+    code = _generate(out, "--num-tasks", "3", "--demos-per-task", "3", "--seed", "0", "--workers", "2", "--tasks-per-shard", "2")
+    assert code == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def episodes(dataset_dir):
+    """Per episode: task, points (F, 2048, 3), state (F, 8), action (F, 8) read back through LeRobotDataset."""
+    from lerobot.datasets import LeRobotDataset
+
+    dataset = LeRobotDataset(REPO_ID, root=dataset_dir)
+    meta = dataset.meta.episodes
+    result = []
+    for index in range(dataset.meta.total_episodes):
+        rows = dataset.hf_dataset.select(range(meta[index]["dataset_from_index"], meta[index]["dataset_to_index"]))
+        rows = rows.with_format("torch")
+        result.append(
+            {
+                "task": meta[index]["tasks"][0],
+                "points": torch.stack(list(rows["observation.pointcloud"])).numpy(),
+                "state": torch.stack(list(rows["observation.state"])).numpy(),
+                "action": torch.stack(list(rows["action"])).numpy(),
+            }
+        )
+    return result
+
+
+def _poses(vectors: np.ndarray) -> np.ndarray:
+    return np.stack([pose_from_pos_quat(vector[:3], vector[3:7]) for vector in vectors])
+
+
+def test_dataset_loads_and_matches_the_contract(dataset_dir):
+    from lerobot.datasets import LeRobotDataset
+
+    dataset = LeRobotDataset(REPO_ID, root=dataset_dir)
+    assert dataset.meta.total_episodes == 9
+    assert len(dataset.meta.tasks) == 3
+    features = dataset.meta.features
+    assert features["observation.pointcloud"]["dtype"] == "float32"
+    assert tuple(features["observation.pointcloud"]["shape"]) == (2048, 3)
+    for key in ("observation.state", "action"):
+        assert features[key]["dtype"] == "float32"
+        assert tuple(features[key]["shape"]) == (8,)
+        assert features[key]["names"] == POSE_GRIPPER_NAMES
+    frame = dataset[0]
+    assert frame["observation.pointcloud"].shape == (2048, 3)
+    assert frame["observation.pointcloud"].dtype == torch.float32
+    assert frame["task"] == "pseudo-s0-000000"
+    assert not (dataset_dir / ".shards").exists()
+
+
+def test_every_frame_matches_the_contract(episodes):
+    for episode in episodes:
+        points, state, action = episode["points"], episode["state"], episode["action"]
+        assert points.dtype == np.float32 and points.shape[1:] == (2048, 3)
+        assert np.isfinite(points).all()
+        assert points[..., 2].min() > -0.01, "object points below the table"
+        for vectors in (state, action):
+            assert vectors.dtype == np.float32 and vectors.shape[1] == 8
+            np.testing.assert_allclose(np.linalg.norm(vectors[:, 3:7], axis=1), 1.0, atol=1e-5)
+            assert set(np.unique(vectors[:, 7])) <= {0.0, 1.0}
+        assert (state[:, 7] == 0).any() or (action[:, 7] == 0).any(), "a pseudo-task needs a gripper change"
+
+
+def test_consecutive_poses_are_at_most_1cm_and_3deg_apart(episodes):
+    for episode in episodes:
+        poses = _poses(episode["state"])
+        translation, rotation = pose_distance(poses[:-1], poses[1:])
+        assert translation.max() <= 0.01 + 1e-5
+        assert np.rad2deg(rotation.max()) <= 3.0 + 1e-3
+
+
+def test_demonstrations_of_a_task_share_waypoints_in_object_frames(dataset_dir, episodes):
+    tasks = {record["task"]: record for record in map(json.loads, (dataset_dir / "meta/pseudo_tasks.jsonl").read_text().splitlines())}
+    scenes = [json.loads(line) for line in (dataset_dir / "meta/pseudo_demos.jsonl").read_text().splitlines()]
+    assert len(scenes) == len(episodes) and len(tasks) == 3
+    for scene, episode in zip(scenes, episodes, strict=True):
+        assert scene["task"] == episode["task"] and scene["num_frames"] == len(episode["state"])
+        poses = _poses(episode["state"])
+        for waypoint in tasks[scene["task"]]["waypoints"]:
+            target = np.asarray(scene["T_world_objects"][waypoint["anchor"]]) @ np.asarray(waypoint["T_anchor_ee"])
+            translation, rotation = pose_distance(poses, target[None])
+            closest = np.argmin(translation + rotation)
+            assert translation[closest] < 1e-4 and rotation[closest] < 1e-4, f"{scene['task']}: a waypoint is never reached"
+    for task in tasks:
+        layouts = [np.asarray(scene["T_world_objects"]) for scene in scenes if scene["task"] == task]
+        assert len(layouts) == 3
+        assert not np.allclose(layouts[0], layouts[1]), "demonstrations must place the objects anew"
+
+
+def test_held_object_points_move_rigidly_with_the_gripper(episodes):
+    """Over a closed-gripper stretch the cloud is static objects plus points fixed in the EE frame."""
+    found_carried = False
+    for episode in episodes:
+        state, points = episode["state"], episode["points"].astype(np.float64)
+        closed = np.flatnonzero(state[:, 7] == 0)
+        if len(closed) < 2:
+            continue
+        poses = _poses(state)
+        first, last = closed[0], closed[-1]
+        if np.any(state[first:last + 1, 7] == 1) and (state[first:last + 1, 7] == 1).sum() > 0.2 * (last - first):
+            continue
+        if np.linalg.norm(poses[last, :3, 3] - poses[first, :3, 3]) < 0.05:
+            continue
+        world_first, world_last = points[first], points[last]
+        ee_first = transform_points(invert(poses[first]), world_first)
+        ee_last = transform_points(invert(poses[last]), world_last)
+        world_distance, _ = cKDTree(world_first).query(world_last)
+        ee_distance, _ = cKDTree(ee_first).query(ee_last)
+        explained = np.minimum(world_distance, ee_distance) < 0.01
+        assert explained.mean() > 0.9, "points neither static nor moving with the gripper"
+        carried = (ee_distance < 0.006) & (world_distance > 0.02)
+        if carried.mean() > 0.1:
+            found_carried = True
+    assert found_carried, "no demonstration showed a grasped object moving with the gripper"
+
+
+def _table(root) -> dict[str, np.ndarray]:
+    frame = pq.ParquetDataset(sorted((root / "data").rglob("*.parquet"))).read().to_pandas()
+    return {
+        column: np.stack([np.stack(list(value)) if getattr(value, "dtype", None) == object else value for value in frame[column]])
+        for column in ("observation.pointcloud", "observation.state", "action", "task_index", "episode_index")
+    }
+
+
+def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with_more_workers(tmp_path):
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.data.generation import generate_shard, prepare_output, shard_ranges
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+
+    arguments = ["--num-tasks", "2", "--demos-per-task", "2", "--seed", "7", "--tasks-per-shard", "1"]
+    fresh, resumed = tmp_path / "fresh", tmp_path / "resumed"
+    assert _generate(fresh, *arguments) == 0
+
+    config = config_from_args(build_parser().parse_args(["--out", str(resumed), "--repo-id", REPO_ID, *arguments]))
+    prepare_output(config, overwrite=False, resume=False)
+    finished = generate_shard(config, 0, shard_ranges(config)[0])
+    (resumed / ".shards" / "shard-00001.tmp" / "data").mkdir(parents=True)
+    assert LeRobotDataset(f"{REPO_ID}-shard-00000", root=finished).meta.total_episodes == 2
+    assert _generate(resumed, *arguments) == 2, "an interrupted output must not be overwritten silently"
+    assert _generate(resumed, *arguments, "--workers", "2", "--resume") == 0
+
+    left, right = _table(fresh), _table(resumed)
+    for column in left:
+        np.testing.assert_array_equal(left[column], right[column])
+    other = tmp_path / "other"
+    assert _generate(other, "--num-tasks", "1", "--demos-per-task", "2", "--seed", "8") == 0
+    assert not np.array_equal(_table(other)["observation.state"][:10], left["observation.state"][:10])
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--num-tasks", "0"], "num_tasks must be a positive integer"),
+        (["--demos-per-task", "-2"], "demos_per_task must be a positive integer"),
+        (["--workers", "0"], "workers must be a positive integer"),
+        (["--objects", "pb/mug", "urdf/1234"], "unknown object id 'urdf/1234'"),
+        (["--resume", "--overwrite"], "either --overwrite or --resume"),
+    ],
+)
+def test_bad_arguments_fail_clearly_and_write_nothing(tmp_path, capsys, arguments, message):
+    out = tmp_path / "out"
+    assert _generate(out, *arguments) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_existing_output_is_never_overwritten_without_consent(tmp_path, capsys):
+    out = tmp_path / "existing"
+    out.mkdir()
+    (out / "precious.txt").write_text("keep me")
+    assert _generate(out, "--num-tasks", "1") == 2
+    assert "already exists" in capsys.readouterr().err
+    assert (out / "precious.txt").read_text() == "keep me"
+    assert _generate(out, "--num-tasks", "1", "--resume") == 2
+    assert "no resumable generation" in capsys.readouterr().err
+    assert (out / "precious.txt").read_text() == "keep me"
+
+
+def test_resume_refuses_changed_settings(tmp_path, capsys):
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+    from lerobot_instant_policy.data.generation import prepare_output
+
+    out = tmp_path / "run"
+    config = config_from_args(build_parser().parse_args(["--out", str(out), "--num-tasks", "2", "--seed", "1"]))
+    prepare_output(config, overwrite=False, resume=False)
+    assert _generate(out, "--num-tasks", "2", "--seed", "2", "--resume") == 2
+    assert "settings differ" in capsys.readouterr().err
+
+
+def test_unwritable_output_fails_clearly(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert _generate(blocker / "out", "--num-tasks", "1") == 2
+    assert "cannot write" in capsys.readouterr().err
+    assert blocker.read_text() == "not a directory"
