@@ -211,12 +211,12 @@ def make_demo(
         if min(step.T_world_ee[2, 3] for step in steps) < config.min_height:
             reasons.append("the gripper went below the table")
             continue
+        if _lowest_point(objects, T_world_objects) < config.min_height:
+            reasons.append("an object went below the table")
+            continue
         demo = _render(task, layout, steps, T_world_objects, held, renderer, rng, config)
         if demo is None:
             reasons.append("a frame had no object in view")
-            continue
-        if demo.points[..., 2].min() < config.min_height:
-            reasons.append("an object went below the table")
             continue
         demo.waypoint_frames = _frames_of(steps, [poses[frame] for frame in waypoint_frames])
         return demo
@@ -249,6 +249,16 @@ def _render(
     state = np.stack([_pose_vector(step.T_world_ee, step.gripper_open) for step in steps])
     action = np.stack([_pose_vector(step.action_T_world_ee, step.action_gripper_open) for step in steps])
     return PseudoDemo(task, layout, points, labels, state, action, T_world_objects, held)
+
+
+def _lowest_point(objects: list[ObjectModel], T_world_objects: np.ndarray) -> float:
+    """Lowest world z of any object vertex over all frames, from poses ``(F, 2, 4, 4)``."""
+    lowest = np.inf
+    for index, model in enumerate(objects):
+        z_rows = T_world_objects[:, index, 2, :3]
+        heights = model.vertices @ z_rows.T + T_world_objects[:, index, 2, 3]
+        lowest = min(lowest, float(heights.min()))
+    return lowest
 
 
 def _frames_of(steps: list[Step], waypoint_poses: list[np.ndarray]) -> list[int]:
