@@ -103,7 +103,8 @@ class PointCloudRenderer:
 
     @property
     def _label_lookup(self) -> np.ndarray:
-        """Body id → object index (−1 elsewhere); index −1 of the table is the background (−1 in the mask)."""
+        """Body id → object index, −1 for anything else; the last entry (−1) also serves the mask's background −1
+        and every body id above the objects' (see ``_render_camera``'s clip)."""
         lookup = np.full(max(self._object_bodies, default=0) + 2, -1, dtype=np.int8)
         lookup[self._object_bodies] = np.arange(len(self._object_bodies))
         return lookup
@@ -169,7 +170,8 @@ class PointCloudRenderer:
         )
         depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
         segmentation = np.asarray(segmentation).reshape(height, width)
-        labels_image = self._label_lookup[np.clip(segmentation, -1, len(self._label_lookup) - 2)]
+        lookup = self._label_lookup
+        labels_image = lookup[np.clip(segmentation, -1, len(lookup) - 1)]
         rows, cols = np.nonzero(labels_image >= 0)
         if len(rows) == 0:
             return np.zeros((0, 3)), np.zeros(0, dtype=np.int8)
