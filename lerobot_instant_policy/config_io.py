@@ -1,4 +1,4 @@
-"""Reading dataclass configs from JSON files (nested dataclasses included) and writing them back."""
+"""Reading dataclass configs from JSON files (nested dataclasses included)."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from lerobot_instant_policy.cli.generate import main as generate_main
-from lerobot_instant_policy.data.lerobot_format import POSE_GRIPPER_NAMES
+from lerobot_instant_policy.data.lerobot_format import POSE_GRIPPER_NAMES, read_episode
 from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
 
 REPO_ID = "local/test_pseudo"
@@ -35,20 +35,7 @@ def episodes(dataset_dir):
     from lerobot.datasets import LeRobotDataset
 
     dataset = LeRobotDataset(REPO_ID, root=dataset_dir)
-    meta = dataset.meta.episodes
-    result = []
-    for index in range(dataset.meta.total_episodes):
-        rows = dataset.hf_dataset.select(range(meta[index]["dataset_from_index"], meta[index]["dataset_to_index"]))
-        rows = rows.with_format("torch")
-        result.append(
-            {
-                "task": meta[index]["tasks"][0],
-                "points": torch.stack(list(rows["observation.pointcloud"])).numpy(),
-                "state": torch.stack(list(rows["observation.state"])).numpy(),
-                "action": torch.stack(list(rows["action"])).numpy(),
-            }
-        )
-    return result
+    return [read_episode(dataset, index) for index in range(dataset.meta.total_episodes)]
 
 
 def _poses(vectors: np.ndarray) -> np.ndarray:

@@ -132,6 +132,15 @@ def demo_record(task: PseudoTask, demo) -> dict:
     }
 
 
+def shard_dir(config: GenerationConfig, shard_index: int) -> Path:
+    """Where shard ``shard_index`` lives once finished (``.tmp`` beside it while it is written)."""
+    return Path(config.out) / SHARDS_DIR / f"shard-{shard_index:05d}"
+
+
+def shard_repo_id(config: GenerationConfig, shard_index: int) -> str:
+    return f"{config.repo_id}-shard-{shard_index:05d}"
+
+
 def shard_ranges(config: GenerationConfig) -> list[range]:
     return [
         range(start, min(start + config.tasks_per_shard, config.num_tasks))
@@ -141,14 +150,13 @@ def shard_ranges(config: GenerationConfig) -> list[range]:
 
 def generate_shard(config: GenerationConfig, shard_index: int, tasks: range, on_episode: Callable[[], None] | None = None) -> Path:
     """Write shard ``shard_index`` (tasks ``tasks``) as a complete dataset; returns its directory."""
-    shards = Path(config.out) / SHARDS_DIR
-    final = shards / f"shard-{shard_index:05d}"
+    final = shard_dir(config, shard_index)
     if final.exists():
         return final
-    partial = shards / f"shard-{shard_index:05d}.tmp"
+    partial = final.with_name(final.name + ".tmp")
     if partial.exists():
         shutil.rmtree(partial)
-    dataset = create_dataset(f"{config.repo_id}-shard-{shard_index:05d}", partial, config.fps, config.demo.num_points)
+    dataset = create_dataset(shard_repo_id(config, shard_index), partial, config.fps, config.demo.num_points)
     task_records, demo_records = [], []
     with PointCloudRenderer(config.render) as renderer:
         for task_index in tasks:
@@ -198,7 +206,7 @@ def merge_shards(config: GenerationConfig, keep_shards: bool = False) -> Path:
     from lerobot.datasets.aggregate import aggregate_datasets
 
     out = Path(config.out)
-    shard_dirs = [out / SHARDS_DIR / f"shard-{index:05d}" for index in range(len(shard_ranges(config)))]
+    shard_dirs = [shard_dir(config, index) for index in range(len(shard_ranges(config)))]
     missing = [str(path) for path in shard_dirs if not path.exists()]
     if missing:
         raise FileNotFoundError(f"cannot merge, shards missing: {missing}")
@@ -211,7 +219,7 @@ def merge_shards(config: GenerationConfig, keep_shards: bool = False) -> Path:
     schema = pq.read_schema(next((shard_dirs[0] / "data").rglob("*.parquet")))
     with keep_array_types_while_aggregating(schema):
         aggregate_datasets(
-            repo_ids=[f"{config.repo_id}-shard-{index:05d}" for index in range(len(shard_dirs))],
+            repo_ids=[shard_repo_id(config, index) for index in range(len(shard_dirs))],
             aggr_repo_id=config.repo_id,
             roots=shard_dirs,
             aggr_root=merged,
@@ -240,7 +248,7 @@ def generate_dataset(
     config.validate()
     prepare_output(config, overwrite, resume)
     ranges = shard_ranges(config)
-    todo = [index for index in range(len(ranges)) if not (Path(config.out) / SHARDS_DIR / f"shard-{index:05d}").exists()]
+    todo = [index for index in range(len(ranges)) if not shard_dir(config, index).exists()]
     total_episodes = sum(len(ranges[index]) for index in todo) * config.demos_per_task
     with tqdm(total=total_episodes, desc="pseudo-demonstrations", unit="demo", disable=not progress) as bar:
         if config.workers == 1 or len(todo) <= 1:

@@ -51,6 +51,21 @@ def write_episode(dataset, points: np.ndarray, state: np.ndarray, action: np.nda
     dataset.save_episode()
 
 
+def read_episode(dataset, episode_index: int) -> dict:
+    """One episode of a LeRobotDataset as numpy: ``task``, ``points (F, P, 3)``, ``state (F, 8)``, ``action (F, 8)``."""
+    import torch
+
+    episode = dataset.meta.episodes[episode_index]
+    rows = dataset.hf_dataset.select(range(episode["dataset_from_index"], episode["dataset_to_index"]))
+    rows = rows.with_format("torch")
+    return {
+        "task": episode["tasks"][0],
+        "points": torch.stack(list(rows[POINTCLOUD_KEY])).numpy(),
+        "state": torch.stack(list(rows[STATE_KEY])).numpy(),
+        "action": torch.stack(list(rows[ACTION_KEY])).numpy(),
+    }
+
+
 @contextlib.contextmanager
 def keep_array_types_while_aggregating(schema):
     """Let LeRobot's ``aggregate_datasets`` copy 2-D array features such as the point cloud.

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .lerobot_format import read_episode
+
 
 def draw_preview(episodes: list[list[dict]], path: str | Path, frames_per_demo: int = 4) -> Path:
     """Save a PNG of ``episodes[task][demo]``: dicts of ``points (F, P, 3)``, ``state (F, 8)``, ``action (F, 8)``, ``task``."""
@@ -36,29 +38,13 @@ def draw_preview(episodes: list[list[dict]], path: str | Path, frames_per_demo: 
 
 def load_preview_episodes(dataset, num_tasks: int = 2, demos_per_task: int = 3) -> list[list[dict]]:
     """Pick the first ``num_tasks`` tasks of a LeRobotDataset and up to ``demos_per_task`` episodes of each."""
-    import torch
-
-    episodes = dataset.meta.episodes
     by_task: dict[str, list[int]] = {}
     for index in range(dataset.meta.total_episodes):
-        task = episodes[index]["tasks"][0]
-        by_task.setdefault(task, []).append(index)
-    selected = []
-    for task, indices in list(by_task.items())[:num_tasks]:
-        demos = []
-        for episode in indices[:demos_per_task]:
-            start, stop = episodes[episode]["dataset_from_index"], episodes[episode]["dataset_to_index"]
-            rows = dataset.hf_dataset.select(range(start, stop)).with_format("torch")
-            demos.append(
-                {
-                    "task": task,
-                    "points": torch.stack(list(rows["observation.pointcloud"])).numpy(),
-                    "state": torch.stack(list(rows["observation.state"])).numpy(),
-                    "action": torch.stack(list(rows["action"])).numpy(),
-                }
-            )
-        selected.append(demos)
-    return selected
+        by_task.setdefault(dataset.meta.episodes[index]["tasks"][0], []).append(index)
+    return [
+        [read_episode(dataset, episode) for episode in indices[:demos_per_task]]
+        for indices in list(by_task.values())[:num_tasks]
+    ]
 
 
 def _draw_demo(axis, demo: dict, frames_per_demo: int) -> None:

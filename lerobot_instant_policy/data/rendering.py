@@ -57,6 +57,7 @@ class PointCloudRenderer:
         self._shapes: dict[str, int] = {}
         self._object_bodies: list[int] = []
         self._object_corners: list[np.ndarray] = []
+        self._label_of_body = np.full(1, -1, dtype=np.int8)
         self._views = [self._view_matrix(camera) for camera in self.config.cameras]
         self._projections = [self._projection_matrix(camera) for camera in self.config.cameras]
         self._gripper_bodies = {
@@ -100,14 +101,9 @@ class PointCloudRenderer:
             self._object_corners.append(
                 np.array([[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])])
             )
-
-    @property
-    def _label_lookup(self) -> np.ndarray:
-        """Body id → object index, −1 for anything else; the last entry (−1) also serves the mask's background −1
-        and every body id above the objects' (see ``_render_camera``'s clip)."""
-        lookup = np.full(max(self._object_bodies, default=0) + 2, -1, dtype=np.int8)
-        lookup[self._object_bodies] = np.arange(len(self._object_bodies))
-        return lookup
+        # body id → object index; the last entry (−1) also serves the mask's background −1 and every other body
+        self._label_of_body = np.full(max(self._object_bodies, default=0) + 2, -1, dtype=np.int8)
+        self._label_of_body[self._object_bodies] = np.arange(len(self._object_bodies))
 
     def render(
         self, T_world_objects: list[np.ndarray], T_world_ee: np.ndarray, gripper_open: bool
@@ -170,8 +166,7 @@ class PointCloudRenderer:
         )
         depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
         segmentation = np.asarray(segmentation).reshape(height, width)
-        lookup = self._label_lookup
-        labels_image = lookup[np.clip(segmentation, -1, len(lookup) - 1)]
+        labels_image = self._label_of_body[np.clip(segmentation, -1, len(self._label_of_body) - 1)]
         rows, cols = np.nonzero(labels_image >= 0)
         if len(rows) == 0:
             return np.zeros((0, 3)), np.zeros(0, dtype=np.int8)
