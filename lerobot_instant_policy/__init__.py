@@ -5,3 +5,6 @@ datasets), ``cli`` (``lerobot-ip-*`` commands).
 """
 
 __version__ = "0.1.0"
+
+# registrations: the ``demo_replay`` policy config, the ``bullet_tabletop`` env config
+from . import baselines, sim  # noqa: E402,F401

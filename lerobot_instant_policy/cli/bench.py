@@ -2,6 +2,8 @@
 
 ``lerobot-ip-bench generate``: rendered pseudo-demonstration frames per second, for one worker process and for
 ``--workers`` processes at once (medians over ``--repeats`` runs), and demonstrations per second.
+``lerobot-ip-bench encoder``: geometry-encoder clouds per second at 2048 points, batch 1 and 16, both presets.
+``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
 """
 
 from __future__ import annotations
@@ -72,8 +74,28 @@ def main(argv: list[str] | None = None) -> int:
     generate.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     generate.add_argument("--repeats", type=int, default=3)
     generate.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    encoder = commands.add_parser("encoder", help="geometry encoder clouds per second (2048 points, CPU)")
+    encoder.add_argument("--repeats", type=int, default=5)
+    encoder.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    env = commands.add_parser("env", help="bullet_tabletop env steps per second with point-cloud observations")
+    env.add_argument("--task", default="pick_and_place")
+    env.add_argument("--steps", type=int, default=60)
+    env.add_argument("--repeats", type=int, default=3)
+    env.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
-    if args.command == "generate":
+    if args.command == "env":
+        if min(args.steps, args.repeats) <= 0:
+            parser.error("--steps and --repeats must be positive")
+        from .bench_env import bench_env
+
+        result = bench_env(args.task, args.steps, args.repeats)
+    elif args.command == "encoder":
+        if args.repeats <= 0:
+            parser.error("--repeats must be positive")
+        from .bench_encoder import bench_encoder
+
+        result = bench_encoder(repeats=args.repeats)
+    elif args.command == "generate":
         if min(args.tasks, args.workers, args.repeats) <= 0:
             parser.error("--tasks, --workers and --repeats must be positive")
         result = bench_generate(args.tasks, args.workers, args.repeats)

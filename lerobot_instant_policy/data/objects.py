@@ -2,7 +2,8 @@
 
 Object ids:
 
-- ``urdf/000`` … ``urdf/999``: the 1,000 procedurally made ``random_urdfs`` of ``pybullet_data``;
+- ``urdf/000`` … ``urdf/999``: the procedurally made ``random_urdfs`` of ``pybullet_data``, except those in
+  ``BROKEN_URDFS`` (``168.obj`` ships with NaN vertices), 999 objects;
 - ``pb/<name>``: named ``pybullet_data`` meshes (duck, teddy, mug, lego, jenga, tray, …);
 - ``prim/<shape>_<k>``: trimesh primitives, ``k`` in ``0 … 39`` sets the shape's proportions
   (box, cylinder, capsule, cone, torus, lidded box, drawer-like cabinet).
@@ -11,7 +12,7 @@ Meshes are decimated to at most ``MAX_FACES`` triangles (rendering cost grows wi
 normalised to its own frame: the bounding box is centred in x/y, rests on z = 0, and the
 largest extent is a size between ``MIN_SIZE`` and ``MAX_SIZE`` fixed by the id. The held-out split
 (``HELD_OUT``) is every id whose number ends in 9 (``urdf/009``, ``urdf/019`` … and ``prim/*_9``,
-``prim/*_19`` …) plus ``pb/bunny``, ``pb/soccerball`` and ``pb/toy_prism``: 100 + 28 + 3 = 131 objects that
+``prim/*_19`` …) plus ``pb/bunny``, ``pb/soccerball`` and ``pb/toy_prism``: 100 + 28 + 3 = 131 of the 1,295 objects that
 pseudo-demonstrations never use unless asked.
 """
 
@@ -54,6 +55,7 @@ _PYBULLET_MESHES: dict[str, tuple[str, tuple[float, float, float], tuple[float, 
     "cube": ("cube.obj", (1, 1, 1), (0, 0, 0)),
 }
 _HELD_OUT_NAMED = ("pb/bunny", "pb/soccerball", "pb/toy_prism")
+BROKEN_URDFS = frozenset({"168"})
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,7 @@ class ObjectModel:
 
 def all_object_ids() -> list[str]:
     """Every id in the library, sorted."""
-    ids = [f"urdf/{index:03d}" for index in range(1000)]
+    ids = [f"urdf/{index:03d}" for index in range(1000) if f"{index:03d}" not in BROKEN_URDFS]
     ids += [f"pb/{name}" for name in _PYBULLET_MESHES]
     ids += [f"prim/{shape}_{k}" for shape in PRIMITIVE_SHAPES for k in range(PRIMITIVE_VARIANTS)]
     return sorted(ids)

@@ -58,8 +58,8 @@ class PointCloudRenderer:
         self._object_bodies: list[int] = []
         self._object_corners: list[np.ndarray] = []
         self._label_of_body = np.full(1, -1, dtype=np.int8)
-        self._views = [self._view_matrix(camera) for camera in self.config.cameras]
-        self._projections = [self._projection_matrix(camera) for camera in self.config.cameras]
+        self._views = [camera_view_matrix(camera) for camera in self.config.cameras]
+        self._projections = [camera_projection_matrix(camera) for camera in self.config.cameras]
         self._gripper_bodies = {
             True: self._make_gripper(finger_gap=0.08),
             False: self._make_gripper(finger_gap=0.0),
@@ -138,49 +138,9 @@ class PointCloudRenderer:
     def _render_camera(
         self, camera: CameraConfig, view: np.ndarray, projection: np.ndarray, corners_world: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        clip = np.c_[corners_world, np.ones(len(corners_world))] @ (projection @ view).T
-        if np.any(clip[:, 3] <= camera.near):
-            x_range, y_range = (-1.0, 1.0), (-1.0, 1.0)
-        else:
-            ndc = clip[:, :2] / clip[:, 3:4]
-            x_range = (max(ndc[:, 0].min(), -1.0), min(ndc[:, 0].max(), 1.0))
-            y_range = (max(ndc[:, 1].min(), -1.0), min(ndc[:, 1].max(), 1.0))
-        if x_range[0] >= x_range[1] or y_range[0] >= y_range[1]:
-            return np.zeros((0, 3)), np.zeros(0, dtype=np.int8)
-        full_width, full_height = camera.full_resolution
-        width = int(np.clip(np.ceil((x_range[1] - x_range[0]) / 2 * full_width), 2, self.config.max_crop_pixels))
-        height = int(np.clip(np.ceil((y_range[1] - y_range[0]) / 2 * full_height), 2, self.config.max_crop_pixels))
-        crop = np.eye(4)
-        crop[0, 0] = 2.0 / (x_range[1] - x_range[0])
-        crop[0, 3] = -(x_range[0] + x_range[1]) / (x_range[1] - x_range[0])
-        crop[1, 1] = 2.0 / (y_range[1] - y_range[0])
-        crop[1, 3] = -(y_range[0] + y_range[1]) / (y_range[1] - y_range[0])
-        cropped_projection = crop @ projection
-        _, _, _, depth, segmentation = pybullet.getCameraImage(
-            width,
-            height,
-            viewMatrix=view.T.reshape(-1).tolist(),
-            projectionMatrix=cropped_projection.T.reshape(-1).tolist(),
-            renderer=pybullet.ER_TINY_RENDERER,
-            physicsClientId=self.client,
+        return render_segmented_points(
+            self.client, camera, view, projection, corners_world, self._label_of_body, self.config.max_crop_pixels
         )
-        depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
-        segmentation = np.asarray(segmentation).reshape(height, width)
-        labels_image = self._label_of_body[np.clip(segmentation, -1, len(self._label_of_body) - 1)]
-        rows, cols = np.nonzero(labels_image >= 0)
-        if len(rows) == 0:
-            return np.zeros((0, 3)), np.zeros(0, dtype=np.int8)
-        ndc = np.stack(
-            [
-                2.0 * (cols + 0.5) / width - 1.0,
-                1.0 - 2.0 * (rows + 0.5) / height,
-                2.0 * depth[rows, cols] - 1.0,
-                np.ones(len(rows)),
-            ],
-            axis=1,
-        )
-        world = ndc @ np.linalg.inv(cropped_projection @ view).T
-        return world[:, :3] / world[:, 3:4], labels_image[rows, cols]
 
     def _place_gripper(self, T_world_ee: np.ndarray, gripper_open: bool) -> None:
         position, quat = pose_to_pos_quat(T_world_ee)
@@ -205,13 +165,79 @@ class PointCloudRenderer:
             baseMass=0, baseVisualShapeIndex=shape, basePosition=_HIDDEN_POSITION, physicsClientId=self.client
         )
 
-    @staticmethod
-    def _view_matrix(camera: CameraConfig) -> np.ndarray:
-        view = pybullet.computeViewMatrix(camera.eye, camera.target, (0.0, 0.0, 1.0))
-        return np.asarray(view, dtype=np.float64).reshape(4, 4).T
 
-    @staticmethod
-    def _projection_matrix(camera: CameraConfig) -> np.ndarray:
-        width, height = camera.full_resolution
-        projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, width / height, camera.near, camera.far)
-        return np.asarray(projection, dtype=np.float64).reshape(4, 4).T
+def render_segmented_points(
+    client: int,
+    camera: CameraConfig,
+    view: np.ndarray,
+    projection: np.ndarray,
+    corners_world: np.ndarray,
+    label_of_body: np.ndarray,
+    max_crop_pixels: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project one camera's labelled pixels in pybullet client ``client`` to world points.
+
+    Only the crop of the image that ``corners_world (K, 3)`` (corners of the objects' bounding boxes) can cover
+    is rendered, at most ``max_crop_pixels`` wide and high. ``label_of_body`` maps a segmentation body id to a
+    label (its last entry, −1, serves the background and every unlabelled body). ``view`` and ``projection``
+    are ``(4, 4)`` (``camera_view_matrix`` / ``camera_projection_matrix``).
+
+    Returns:
+        ``points (P, 3)`` in the world frame and ``labels (P,)`` of the labelled pixels (``P`` may be 0).
+    """
+    clip = np.c_[corners_world, np.ones(len(corners_world))] @ (projection @ view).T
+    if np.any(clip[:, 3] <= camera.near):
+        x_range, y_range = (-1.0, 1.0), (-1.0, 1.0)
+    else:
+        ndc = clip[:, :2] / clip[:, 3:4]
+        x_range = (max(ndc[:, 0].min(), -1.0), min(ndc[:, 0].max(), 1.0))
+        y_range = (max(ndc[:, 1].min(), -1.0), min(ndc[:, 1].max(), 1.0))
+    if x_range[0] >= x_range[1] or y_range[0] >= y_range[1]:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int8)
+    full_width, full_height = camera.full_resolution
+    width = int(np.clip(np.ceil((x_range[1] - x_range[0]) / 2 * full_width), 2, max_crop_pixels))
+    height = int(np.clip(np.ceil((y_range[1] - y_range[0]) / 2 * full_height), 2, max_crop_pixels))
+    crop = np.eye(4)
+    crop[0, 0] = 2.0 / (x_range[1] - x_range[0])
+    crop[0, 3] = -(x_range[0] + x_range[1]) / (x_range[1] - x_range[0])
+    crop[1, 1] = 2.0 / (y_range[1] - y_range[0])
+    crop[1, 3] = -(y_range[0] + y_range[1]) / (y_range[1] - y_range[0])
+    cropped_projection = crop @ projection
+    _, _, _, depth, segmentation = pybullet.getCameraImage(
+        width,
+        height,
+        viewMatrix=view.T.reshape(-1).tolist(),
+        projectionMatrix=cropped_projection.T.reshape(-1).tolist(),
+        renderer=pybullet.ER_TINY_RENDERER,
+        physicsClientId=client,
+    )
+    depth = np.asarray(depth, dtype=np.float64).reshape(height, width)
+    segmentation = np.asarray(segmentation).reshape(height, width)
+    labels_image = label_of_body[np.clip(segmentation, -1, len(label_of_body) - 1)]
+    rows, cols = np.nonzero(labels_image >= 0)
+    if len(rows) == 0:
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int8)
+    ndc = np.stack(
+        [
+            2.0 * (cols + 0.5) / width - 1.0,
+            1.0 - 2.0 * (rows + 0.5) / height,
+            2.0 * depth[rows, cols] - 1.0,
+            np.ones(len(rows)),
+        ],
+        axis=1,
+    )
+    world = ndc @ np.linalg.inv(cropped_projection @ view).T
+    return world[:, :3] / world[:, 3:4], labels_image[rows, cols]
+
+
+def camera_view_matrix(camera: CameraConfig) -> np.ndarray:
+    """The ``(4, 4)`` world → camera (OpenGL) view matrix of ``camera``."""
+    view = pybullet.computeViewMatrix(camera.eye, camera.target, (0.0, 0.0, 1.0))
+    return np.asarray(view, dtype=np.float64).reshape(4, 4).T
+
+
+def camera_projection_matrix(camera: CameraConfig) -> np.ndarray:
+    """The ``(4, 4)`` OpenGL projection matrix of ``camera``'s full sensor."""
+    width, height = camera.full_resolution
+    projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, width / height, camera.near, camera.far)
+    return np.asarray(projection, dtype=np.float64).reshape(4, 4).T

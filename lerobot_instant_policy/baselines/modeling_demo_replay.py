@@ -1,0 +1,172 @@
+"""``DemoReplayPolicy``: the classical baseline of the ``bullet_tabletop`` suite (issue 4, part 5).
+
+At the first ``select_action`` after ``reset()``, for every batch element: load (once per task) the
+demonstrations of its task, register each demonstration's first-frame cloud onto the current cloud, keep the
+demonstration that fits best (lowest ``fit_error``) and plan its actions moved by the estimated ``T_now_demo``:
+``T_world_ee_now = T_now_demo @ T_world_ee_demo`` for every commanded pose, gripper commands unchanged. Call ``k``
+returns planned action ``k``; after the last one the last action is repeated.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.policies.pretrained import PreTrainedPolicy
+from scipy.spatial.transform import Rotation
+from torch import Tensor
+
+from ..data.demonstrations import Demonstration, DemonstrationError, load_demonstrations, open_demo_dataset
+from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
+from ..geometry.registration import RegistrationResult, register_rigid
+from .configuration_demo_replay import DemoReplayConfig
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReplayPlan:
+    """The actions one env executes: ``actions (F, 8)`` in the world frame, from demonstration ``demo_index`` of
+    ``task`` moved by ``T_now_demo (4, 4)``; ``registration`` is the winning fit."""
+
+    task: str
+    demo_index: int
+    T_now_demo: np.ndarray
+    actions: np.ndarray
+    registration: RegistrationResult
+
+
+class DemoReplayPolicy(PreTrainedPolicy):
+    """Registration + replay of a demonstration; no trainable parameters (see ``DemoReplayConfig``)."""
+
+    config_class = DemoReplayConfig
+    name = "demo_replay"
+
+    def __init__(self, config: DemoReplayConfig, dataset_stats=None, dataset_meta=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        self.config: DemoReplayConfig = config
+        self._demonstrations: dict[str, list[Demonstration]] = {}
+        self._plans: list[ReplayPlan] | None = None
+        self._step = 0
+        if config.demo_repo_id is not None:
+            open_demo_dataset(config.demo_repo_id, self._demo_root())  # fail before the first episode, not in it
+
+    def set_demonstrations(self, demonstrations: list[Demonstration]) -> None:
+        """Use ``demonstrations`` (all of one task) for that task instead of reading ``demo_root``."""
+        tasks = {demo.task for demo in demonstrations}
+        if len(tasks) != 1:
+            raise DemonstrationError(f"set_demonstrations takes demonstrations of one task, got tasks {sorted(tasks)}")
+        self._demonstrations[tasks.pop()] = list(demonstrations)
+        self.reset()
+
+    def demonstrations(self, task: str) -> list[Demonstration]:
+        """The demonstrations of ``task``: handed in, or read from the configured dataset on first use."""
+        if task not in self._demonstrations:
+            config = self.config
+            if config.demo_repo_id is None:
+                raise DemonstrationError(
+                    f"demo_replay has no demonstrations of task {task!r}: set --policy.demo_repo_id and "
+                    "--policy.demo_root to a LeRobotDataset of demonstrations, or call set_demonstrations()"
+                )
+            self._demonstrations[task] = load_demonstrations(config.demo_repo_id, self._demo_root(), task, config.num_demos)
+        return self._demonstrations[task]
+
+    def _demo_root(self) -> Path:
+        """``demo_root``, or LeRobot's local cache ``$HF_LEROBOT_HOME/<demo_repo_id>`` when it is unset."""
+        from lerobot.utils.constants import HF_LEROBOT_HOME
+
+        return Path(self.config.demo_root) if self.config.demo_root else HF_LEROBOT_HOME / self.config.demo_repo_id
+
+    @property
+    def plans(self) -> list[ReplayPlan] | None:
+        """The current episode's plan per batch element (``None`` before the first ``select_action``)."""
+        return self._plans
+
+    def reset(self) -> None:
+        self._plans = None
+        self._step = 0
+
+    def get_optim_params(self) -> list:
+        return []
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict | None]:
+        raise RuntimeError("demo_replay has no trainable parameters: evaluate it with lerobot-eval, do not train it")
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """The remaining planned actions ``(B, S, 8)`` from the current step (the last action repeated to align)."""
+        self._ensure_plans(batch)
+        remaining = max(len(plan.actions) for plan in self._plans) - self._step
+        steps = [self._action_at(self._step + offset) for offset in range(max(1, remaining))]
+        return torch.from_numpy(np.stack(steps, axis=1)).to(batch[STATE_KEY].device)
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """Action ``(B, 8)`` for the current step: the plan's action at this step (absolute EE pose + gripper)."""
+        self._ensure_plans(batch)
+        action = self._action_at(self._step)
+        self._step += 1
+        return torch.from_numpy(action).to(batch[STATE_KEY].device)
+
+    def _action_at(self, step: int) -> np.ndarray:
+        return np.stack([plan.actions[min(step, len(plan.actions) - 1)] for plan in self._plans]).astype(np.float32)
+
+    def _ensure_plans(self, batch: dict[str, Tensor]) -> None:
+        if self._plans is not None:
+            if len(self._plans) != len(batch[STATE_KEY]):
+                raise ValueError(
+                    f"batch size changed from {len(self._plans)} to {len(batch[STATE_KEY])} within an episode; "
+                    "call reset() between episodes"
+                )
+            return
+        if POINTCLOUD_KEY not in batch:
+            raise KeyError(f"demo_replay needs {POINTCLOUD_KEY!r} in the batch, got keys {sorted(batch)}")
+        clouds = batch[POINTCLOUD_KEY].detach().cpu().numpy()
+        tasks = self._batch_tasks(batch, len(clouds))
+        self._plans = [self._plan(task, cloud) for task, cloud in zip(tasks, clouds, strict=True)]
+        for index, plan in enumerate(self._plans):
+            logger.info(
+                "demo_replay env %d: task %r, demonstration %d, fit error %.4f m, inliers %.2f",
+                index, plan.task, plan.demo_index, plan.registration.fit_error, plan.registration.inlier_ratio,
+            )
+
+    def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
+        tasks = batch.get("task")
+        if tasks is None:
+            if len(self._demonstrations) == 1:
+                return [next(iter(self._demonstrations))] * batch_size
+            raise KeyError("demo_replay needs the task string of every batch element in batch['task']")
+        tasks = [tasks] * batch_size if isinstance(tasks, str) else list(tasks)
+        if len(tasks) != batch_size:
+            raise ValueError(f"batch['task'] has {len(tasks)} entries for a batch of {batch_size}")
+        return tasks
+
+    def _plan(self, task: str, cloud_now: np.ndarray) -> ReplayPlan:
+        """Register every demonstration of ``task`` onto ``cloud_now (P, 3)``; plan the best one's actions."""
+        registration_config = self.config.registration_config()
+        fits = [
+            register_rigid(demo.points_world[0], cloud_now, registration_config)
+            for demo in self.demonstrations(task)
+        ]
+        best = int(np.argmin([fit.fit_error for fit in fits]))
+        T_now_demo = fits[best].T_target_source
+        actions = transform_pose_actions(T_now_demo, self.demonstrations(task)[best].action)
+        return ReplayPlan(task=task, demo_index=best, T_now_demo=T_now_demo, actions=actions, registration=fits[best])
+
+
+def transform_pose_actions(T_now_demo: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """Move absolute EE-pose actions ``(F, 8)`` (xyz, quaternion xyzw, gripper) by ``T_now_demo (4, 4)``.
+
+    Each commanded ``T_world_ee`` becomes ``T_now_demo @ T_world_ee``; the gripper command is kept. Quaternions
+    come out normalised with ``w >= 0``.
+    """
+    rotation = Rotation.from_matrix(T_now_demo[:3, :3])
+    positions = actions[:, :3].astype(np.float64) @ T_now_demo[:3, :3].T + T_now_demo[:3, 3]
+    quats = (rotation * Rotation.from_quat(actions[:, 3:7].astype(np.float64))).as_quat()
+    quats[quats[:, 3] < 0] *= -1.0
+    return np.concatenate([positions, quats, actions[:, 7:8]], axis=1).astype(np.float32)
+

@@ -1,0 +1,31 @@
+"""``lerobot-ip-bench encoder``: geometry-encoder throughput on CPU, clouds of 2048 points per second."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import torch
+
+from ..model.geometry_encoder import ENCODER_PRESETS, GeometryEncoder
+
+
+@torch.no_grad()
+def bench_encoder(batch_sizes: tuple[int, ...] = (1, 16), repeats: int = 5, num_points: int = 2048) -> dict:
+    """Median clouds/s of the deterministic encoder forward pass per preset and batch size (random weights)."""
+    torch.manual_seed(0)
+    result: dict = {"num_points": num_points, "torch_threads": torch.get_num_threads(), "repeats": repeats}
+    for preset, config in ENCODER_PRESETS.items():
+        encoder = GeometryEncoder(config).eval()
+        for batch in batch_sizes:
+            clouds = torch.randn(batch, num_points, 3) * 0.08
+            encoder(clouds)
+            seconds = []
+            for _ in range(repeats):
+                started = time.perf_counter()
+                encoder(clouds)
+                seconds.append(time.perf_counter() - started)
+            median = statistics.median(seconds)
+            result[f"{preset}_batch{batch}_clouds_per_s"] = round(batch / median, 1)
+            result[f"{preset}_batch{batch}_ms_per_call"] = round(1000 * median, 2)
+    return result

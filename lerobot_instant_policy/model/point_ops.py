@@ -1,0 +1,67 @@
+"""Farthest-point sampling and nearest-centroid grouping in plain torch (no pyg-lib / torch-cluster).
+
+Every operation works per cloud on a batch ``(B, P, 3)``, so its cost grows linearly with the batch.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def farthest_point_sampling(
+    points: torch.Tensor, num_samples: int, generator: torch.Generator | None = None
+) -> torch.Tensor:
+    """Greedy farthest-point sampling.
+
+    Args:
+        points: ``(B, P, 3)``.
+        num_samples: ``S ≤ P``.
+        generator: ``None`` selects the deterministic start, the point farthest from the cloud's mean, which makes
+            the result independent of point order and of translations. A generator draws a random start per cloud.
+
+    Returns:
+        ``(B, S)`` int64 indices into ``P``; the first is the start, each next one maximises the distance to the
+        already chosen set (ties resolve to the lowest index).
+    """
+    batch, num_points, _ = points.shape
+    if num_samples > num_points:
+        raise ValueError(f"cannot sample {num_samples} points from a cloud of {num_points}")
+    if generator is None:
+        start = (points - points.mean(dim=1, keepdim=True)).square().sum(-1).argmax(dim=1)
+    else:
+        start = torch.randint(num_points, (batch,), generator=generator, device=generator.device).to(points.device)
+    chosen = torch.empty(batch, num_samples, dtype=torch.long, device=points.device)
+    min_sq_dist = torch.full((batch, num_points), float("inf"), dtype=points.dtype, device=points.device)
+    batch_index = torch.arange(batch, device=points.device)
+    farthest = start
+    for sample in range(num_samples):
+        chosen[:, sample] = farthest
+        sq_dist = (points - points[batch_index, farthest][:, None]).square().sum(-1)
+        min_sq_dist = torch.minimum(min_sq_dist, sq_dist)
+        farthest = min_sq_dist.argmax(dim=1)
+    return chosen
+
+
+def nearest_centroid(points: torch.Tensor, centroids: torch.Tensor) -> torch.Tensor:
+    """Index of the nearest centroid of every point: ``points (B, P, 3)``, ``centroids (B, S, 3)`` → ``(B, P)``.
+
+    Exact Euclidean distances (no matrix-product shortcut), so batched and single-cloud calls agree.
+    """
+    distances = torch.cdist(points, centroids, compute_mode="donot_use_mm_for_euclid_dist")
+    return distances.argmin(dim=-1)
+
+
+def gather_points(values: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
+    """``values (B, P, C)`` gathered at ``indices (B, S)`` → ``(B, S, C)``."""
+    return torch.gather(values, 1, indices[..., None].expand(-1, -1, values.shape[-1]))
+
+
+def group_max(values: torch.Tensor, groups: torch.Tensor, num_groups: int) -> torch.Tensor:
+    """Per-group maximum: ``values (B, P, C)``, ``groups (B, P)`` in ``[0, num_groups)`` → ``(B, num_groups, C)``.
+
+    An empty group (possible only when a cloud repeats points) gets zeros.
+    """
+    batch, _, channels = values.shape
+    pooled = values.new_zeros(batch, num_groups, channels)
+    index = groups[..., None].expand(-1, -1, channels)
+    return pooled.scatter_reduce(1, index, values, reduce="amax", include_self=False)

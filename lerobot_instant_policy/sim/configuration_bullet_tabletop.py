@@ -1,0 +1,90 @@
+"""``BulletTabletopEnvConfig``: the LeRobot ``EnvConfig`` registered as ``bullet_tabletop``.
+
+``lerobot-eval --env.type=bullet_tabletop --env.task=NAME`` builds ``eval.batch_size`` envs of task ``NAME``.
+LeRobot turns the env observation ``agent_pos`` into ``observation.state`` (B, 8) and ``pointcloud`` into
+``observation.pointcloud`` (B, 2048, 3); the action feature is (8,), DESIGN §4. This module stays light: the
+simulator is imported only when envs are created.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import partial
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+POINTCLOUD_FEATURE = "observation.pointcloud"
+
+
+def make_bullet_tabletop_env(task: str, task_module: str | None, observe_pointcloud: bool = True, **config_kwargs):
+    """One ``BulletTabletopEnv`` (a picklable factory for gymnasium's vector envs)."""
+    from .env import BulletTabletopConfig, BulletTabletopEnv
+
+    return BulletTabletopEnv(
+        task, BulletTabletopConfig(**config_kwargs), observe_pointcloud=observe_pointcloud, task_module=task_module
+    )
+
+
+@EnvConfig.register_subclass("bullet_tabletop")
+@dataclass
+class BulletTabletopEnvConfig(EnvConfig):
+    """A ``bullet_tabletop`` task (``lerobot-ip-record-demos --list-tasks`` lists them).
+
+    ``task_module``: a module to import first, where user tasks are registered (``sim.task_api``).
+    ``episode_length``: step limit; ``None`` uses the task's own. ``max_translation_step`` (m) and
+    ``max_rotation_step_deg`` bound how far one action moves the EE.
+    """
+
+    task: str | None = "pick_and_lift"
+    fps: int = 10
+    episode_length: int | None = None
+    num_points: int = 2048
+    task_module: str | None = None
+    max_translation_step: float = 0.02
+    max_rotation_step_deg: float = 6.0
+    render_size: int = 256
+    features: dict[str, PolicyFeature] = field(default_factory=dict)
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "pointcloud": POINTCLOUD_FEATURE}
+    )
+
+    def __post_init__(self):
+        if self.num_points <= 0 or self.render_size <= 0 or self.fps <= 0:
+            raise ValueError("num_points, render_size and fps must be positive")
+        self.features = {
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(8,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(8,)),
+            "pointcloud": PolicyFeature(type=FeatureType.STATE, shape=(self.num_points, 3)),
+        }
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {
+            "num_points": self.num_points,
+            "fps": self.fps,
+            "episode_length": self.episode_length,
+            "max_translation_step": self.max_translation_step,
+            "max_rotation_step_deg": self.max_rotation_step_deg,
+            "render_size": (self.render_size, self.render_size),
+        }
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        import gymnasium as gym
+        from lerobot.envs.utils import freeze_after_episode_end
+
+        from .task_api import get_task
+
+        if self.task is None:
+            raise ValueError("bullet_tabletop needs --env.task (see `lerobot-ip-record-demos --list-tasks`)")
+        get_task(self.task, self.task_module)  # unknown names fail here, listing the known tasks
+        factory = partial(make_bullet_tabletop_env, self.task, self.task_module, **self.gym_kwargs)
+        env_fns = [freeze_after_episode_end(factory) for _ in range(n_envs)]
+        if use_async_envs and n_envs > 1:
+            vector_env = gym.vector.AsyncVectorEnv(
+                env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="forkserver"
+            )
+        else:
+            vector_env = gym.vector.SyncVectorEnv(env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+        return {self.type: {0: vector_env}}

@@ -1,0 +1,1 @@
+"""Training loops that join data and model: the geometry encoder's occupancy pretraining."""

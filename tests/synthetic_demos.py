@@ -1,0 +1,78 @@
+"""Synthetic demonstrations for the demonstration-loader and ``demo_replay`` tests.
+
+A scene is one library object at a pose ``T_world_object`` (its cloud sampled from the mesh surface with noise).
+A demonstration approaches the object from above, closes the gripper and lifts: its EE poses are fixed in the
+object frame, so moving the object by ``T`` moves every correct action by ``T``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from lerobot_instant_policy.data.demonstrations import Demonstration
+from lerobot_instant_policy.data.lerobot_format import NUM_POINTS, create_dataset, write_episode
+from lerobot_instant_policy.data.objects import load_object
+from lerobot_instant_policy.geometry.se3 import look_rotation, make_pose, pose_to_pos_quat, transform_points
+
+OBJECT_ID = "pb/mug"
+NUM_FRAMES = 12
+
+
+def object_pose(x: float, y: float, yaw_deg: float) -> np.ndarray:
+    """``T_world_object (4, 4)``: the object upright on the table at ``(x, y)`` turned by ``yaw_deg`` about z."""
+    return make_pose(np.array([x, y, 0.0]), Rotation.from_euler("z", yaw_deg, degrees=True))
+
+
+def object_cloud(T_world_object: np.ndarray, seed: int, noise: float = 0.001, object_id: str = OBJECT_ID) -> np.ndarray:
+    """``(NUM_POINTS, 3)`` float32 world-frame surface samples of the object at ``T_world_object`` with noise."""
+    model = load_object(object_id)
+    mesh = trimesh.Trimesh(model.vertices, model.faces, process=False)
+    rng = np.random.default_rng(seed)
+    points = np.asarray(mesh.sample(NUM_POINTS, seed=seed)) + rng.normal(0.0, noise, (NUM_POINTS, 3))
+    return transform_points(T_world_object, points).astype(np.float32)
+
+
+def ee_poses_in_object() -> np.ndarray:
+    """``(NUM_FRAMES, 4, 4)`` EE poses in the object frame: descend from 25 cm to 8 cm above it, then lift."""
+    down = look_rotation(np.array([0.0, 0.0, -1.0]), yaw=0.3)
+    heights = np.concatenate([np.linspace(0.25, 0.08, NUM_FRAMES // 2), np.linspace(0.08, 0.2, NUM_FRAMES - NUM_FRAMES // 2)])
+    offsets = np.linspace(0.04, 0.0, NUM_FRAMES)
+    return np.stack([make_pose(np.array([offset, 0.02, height]), down) for offset, height in zip(offsets, heights)])
+
+
+def gripper_commands() -> np.ndarray:
+    """``(NUM_FRAMES,)``: open (1) while descending, closed (0) from the lowest frame on."""
+    return (np.arange(NUM_FRAMES) < NUM_FRAMES // 2 - 1).astype(np.float32)
+
+
+def expected_actions(T_world_object: np.ndarray) -> np.ndarray:
+    """``(NUM_FRAMES, 8)`` world-frame actions of the demonstration for the object at ``T_world_object``."""
+    rows = []
+    for pose, gripper in zip(T_world_object @ ee_poses_in_object(), gripper_commands()):
+        position, quat = pose_to_pos_quat(pose)
+        rows.append(np.concatenate([position, quat, [gripper]]))
+    return np.asarray(rows, dtype=np.float32)
+
+
+def make_demonstration(T_world_object: np.ndarray, task: str, seed: int, object_id: str = OBJECT_ID) -> Demonstration:
+    """A demonstration of ``task`` with the object at ``T_world_object``; state k is action k - 1 (start: action 0)."""
+    action = expected_actions(T_world_object)
+    state = np.concatenate([action[:1], action[:-1]])
+    state[:, 7] = np.concatenate([[1.0], action[:-1, 7]])
+    cloud = object_cloud(T_world_object, seed, object_id=object_id)
+    points = np.repeat(cloud[None], NUM_FRAMES, axis=0)
+    return Demonstration(points_world=points, state=state, action=action, task=task)
+
+
+def write_demo_dataset(root, repo_id: str, episodes: list[tuple[str, np.ndarray]], seed: int = 0) -> list[Demonstration]:
+    """Write a LeRobotDataset at ``root`` with one episode per ``(task, T_world_object)``; return what was written."""
+    dataset = create_dataset(repo_id, root)
+    demos = []
+    for index, (task, T_world_object) in enumerate(episodes):
+        demo = make_demonstration(T_world_object, task, seed + index)
+        write_episode(dataset, demo.points_world, demo.state, demo.action, task)
+        demos.append(demo)
+    dataset.finalize()
+    return demos

@@ -1,0 +1,136 @@
+"""``bullet_tabletop`` env contract: spaces, segmented clouds, determinism, bounded steps, bad input, LeRobot config."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+import pytest
+
+from lerobot_instant_policy.sim.configuration_bullet_tabletop import BulletTabletopEnvConfig
+from lerobot_instant_policy.sim.env import BulletTabletopEnv
+from lerobot_instant_policy.sim.rollout import run_episode
+
+
+@pytest.fixture(scope="module")
+def env():
+    environment = BulletTabletopEnv("pick_and_place")
+    yield environment
+    environment.close()
+
+
+def test_spaces_dtypes_and_shapes(env):
+    observation, info = env.reset(seed=0)
+    assert env.observation_space.contains(observation)
+    assert observation["pointcloud"].dtype == np.float32 and observation["pointcloud"].shape == (2048, 3)
+    assert observation["agent_pos"].dtype == np.float32 and observation["agent_pos"].shape == (8,)
+    assert env.action_space.shape == (8,)
+    assert info["is_success"] is False
+    assert env.task == env.task_description == "pick_and_place"
+    assert np.isclose(np.linalg.norm(observation["agent_pos"][3:7]), 1.0, atol=1e-5)
+    assert observation["agent_pos"][7] == 1.0  # gripper open at the start
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.shape == (256, 256, 3) and frame.std() > 0
+
+
+def test_cloud_holds_task_objects_only(env):
+    observation, _ = env.reset(seed=1)
+    points = observation["pointcloud"]
+    boxes = [pybullet.getAABB(body, -1, physicsClientId=env.client) for body in env.scene.object_bodies]
+    inside = np.zeros(len(points), dtype=bool)
+    for lower, upper in boxes:
+        inside |= np.all((points >= np.asarray(lower) - 0.01) & (points <= np.asarray(upper) + 0.01), axis=1)
+    assert inside.all(), "points outside every task object (robot or table points in the cloud)"
+    assert points[:, 2].min() > -0.005
+    for lower, upper in boxes:  # every object is seen
+        assert np.any(np.all((points >= np.asarray(lower) - 0.01) & (points <= np.asarray(upper) + 0.01), axis=1))
+
+
+def test_same_seed_same_scene_and_first_observation():
+    first, second = BulletTabletopEnv("stack_blocks"), BulletTabletopEnv("stack_blocks")
+    try:
+        obs_a, _ = first.reset(seed=7)
+        obs_b, _ = second.reset(seed=7)
+        np.testing.assert_array_equal(obs_a["pointcloud"], obs_b["pointcloud"])
+        np.testing.assert_array_equal(obs_a["agent_pos"], obs_b["agent_pos"])
+        poses_a = [first.scene.pose(body) for body in first.scene.object_bodies]
+        obs_c, _ = first.reset(seed=8)
+        poses_c = [first.scene.pose(body) for body in first.scene.object_bodies]
+        assert not np.allclose(poses_a[0], poses_c[0])
+        obs_d, _ = first.reset(seed=7)
+        np.testing.assert_array_equal(obs_a["pointcloud"], obs_d["pointcloud"])
+    finally:
+        first.close()
+        second.close()
+
+
+def test_far_targets_are_clipped_and_reported(env):
+    observation, _ = env.reset(seed=0)
+    start = observation["agent_pos"][:3].copy()
+    action = np.r_[2.0, 0.0, start[2], observation["agent_pos"][3:7], 1.0]
+    observation, _, _, _, info = env.step(action)
+    assert info["action_clipped"] and info["step_clipped"]
+    assert np.linalg.norm(observation["agent_pos"][:3] - start) < env.config.max_translation_step + 0.003
+    small = np.r_[observation["agent_pos"][:3] + (0.0, 0.005, 0.0), observation["agent_pos"][3:7], 1.0]
+    observation, _, _, _, info = env.step(small)
+    assert not info["action_clipped"] and not info["step_clipped"]
+    np.testing.assert_allclose(observation["agent_pos"][:3], small[:3], atol=0.002)
+
+
+@pytest.mark.parametrize(
+    ("action", "message"),
+    [
+        (np.full(8, np.nan), "NaN"),
+        (np.zeros(7), "shape"),
+        (np.zeros((2, 8)), "shape"),
+        (np.r_[0.5, 0.0, 0.2, 0.0, 0.0, 0.0, 0.0, 1.0], "zero quaternion"),
+    ],
+)
+def test_bad_actions_raise(env, action, message):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step(action)
+
+
+def test_unknown_task_lists_known_tasks():
+    with pytest.raises(ValueError, match="unknown bullet_tabletop task 'open_fridge'.*open_drawer.*pick_and_lift"):
+        BulletTabletopEnv("open_fridge")
+    with pytest.raises(ValueError, match="known tasks:.*stack_blocks"):
+        BulletTabletopEnvConfig(task="open_fridge").create_envs(n_envs=1)
+
+
+def test_grasped_block_moves_with_the_gripper():
+    env = BulletTabletopEnv("pick_and_lift")
+    try:
+        episode = run_episode(env, seed=3)
+        assert episode.success
+        block = env.scene.pose(env.task_impl.block)[:3, 3]
+        ee = env.robot.ee_pose()[:3, 3]
+        assert block[2] > 0.1 and np.linalg.norm(block - ee) < 0.03
+        assert env.scene.gripper_contacts(env.task_impl.block) == 2
+        # the observed cloud follows the lifted block
+        assert episode.points[0][:, 2].max() < 0.045 and episode.points[-1][:, 2].max() > 0.09
+        assert episode.state[-1][7] == 0.0  # gripper reported closed
+    finally:
+        env.close()
+
+
+def test_lerobot_env_config_builds_batched_envs():
+    from lerobot.envs.utils import env_to_policy_features, preprocess_observation
+
+    config = BulletTabletopEnvConfig(task="push_button")
+    features = env_to_policy_features(config)
+    assert features["observation.pointcloud"].shape == (2048, 3)
+    assert features["observation.state"].shape == (8,)
+    assert features["action"].shape == (8,)
+    vector_env = config.create_envs(n_envs=2, use_async_envs=False)["bullet_tabletop"][0]
+    try:
+        observation, _ = vector_env.reset(seed=[0, 1])
+        batch = preprocess_observation(observation)
+        assert tuple(batch["observation.pointcloud"].shape) == (2, 2048, 3)
+        assert tuple(batch["observation.state"].shape) == (2, 8)
+        assert list(vector_env.call("task_description")) == ["push_button", "push_button"]
+        assert vector_env.call("_max_episode_steps")[0] > 0
+        _, _, _, _, info = vector_env.step(np.stack([observation["agent_pos"][i] for i in range(2)]))
+        assert info["is_success"].shape == (2,)
+    finally:
+        vector_env.close()
