@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo test install clean
+.PHONY: demo pseudo-demos eval-suite test install clean
 
 install: $(INSTALLED)
 
@@ -15,9 +15,17 @@ $(INSTALLED): pyproject.toml
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(INSTALLED)
 
+# Record 2 demonstrations of a bullet_tabletop task, evaluate the best available policy, print success + videos.
 demo: $(INSTALLED)
+	$(VENV)/bin/lerobot-ip-demo
+
+pseudo-demos: $(INSTALLED)
 	$(VENV)/bin/lerobot-ip-generate --config configs/generate/default.json --overwrite \
 		--preview outputs/pseudo_demos_preview.png
+
+POLICY ?= demo_replay
+eval-suite: $(INSTALLED)
+	$(VENV)/bin/lerobot-ip-eval-suite --policy $(POLICY) --episodes 10 --out outputs/eval_suite
 
 # CI=true skips tests marked slow.
 test: $(INSTALLED)

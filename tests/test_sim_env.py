@@ -122,7 +122,7 @@ def test_lerobot_env_config_builds_batched_envs():
     assert features["observation.pointcloud"].shape == (2048, 3)
     assert features["observation.state"].shape == (8,)
     assert features["action"].shape == (8,)
-    vector_env = config.create_envs(n_envs=2, use_async_envs=False)["bullet_tabletop"][0]
+    vector_env = config.create_envs(n_envs=2, use_async_envs=False)[config.task][0]
     try:
         observation, _ = vector_env.reset(seed=[0, 1])
         batch = preprocess_observation(observation)

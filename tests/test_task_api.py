@@ -59,7 +59,7 @@ def test_user_task_through_the_lerobot_env_config_and_the_recorder(tmp_path):
     from lerobot_instant_policy.data.lerobot_format import read_episode
     from lerobot_instant_policy.sim.configuration_bullet_tabletop import BulletTabletopEnvConfig
 
-    vector_env = BulletTabletopEnvConfig(task="test_push_puck_forward").create_envs(1)["bullet_tabletop"][0]
+    vector_env = BulletTabletopEnvConfig(task="test_push_puck_forward").create_envs(1)["test_push_puck_forward"][0]
     try:
         assert list(vector_env.call("task")) == ["test_push_puck_forward"]
         assert vector_env.call("_max_episode_steps")[0] == 80

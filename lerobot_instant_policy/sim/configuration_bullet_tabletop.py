@@ -87,4 +87,4 @@ class BulletTabletopEnvConfig(EnvConfig):
             )
         else:
             vector_env = gym.vector.SyncVectorEnv(env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
-        return {self.type: {0: vector_env}}
+        return {self.task: {0: vector_env}}

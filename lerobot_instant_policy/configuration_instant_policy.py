@@ -1,0 +1,313 @@
+"""``InstantPolicyConfig``: the configuration of Instant Policy (``--policy.type=instant_policy``).
+
+One flag picks the network sizes: ``--policy.preset=small`` (CPU) or ``--policy.preset=paper`` (hidden 1024, 16 heads,
+≈118M parameters, the paper's model). A size field left at ``None`` takes the preset's value; a size given explicitly
+wins over the preset. After ``__post_init__`` every size is set, so a saved ``config.json`` is complete on its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
+from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
+
+from .data.lerobot_format import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, STATE_KEY
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
+
+# N and L the graph is built for; the training range of N (min_demos…max_demos) must lie inside too.
+SUPPORTED_DEMOS = (1, 8)
+SUPPORTED_WAYPOINTS = (2, 32)
+SUPPORTED_HORIZON = (1, 32)
+SUPPORTED_INFERENCE_STEPS = (1, 8)
+
+# Gripper keypoints in the EE frame (m) of the authors' code (z: approach axis, y: finger axis): the EE origin, 6 cm
+# back along the approach axis, and ±6 cm along the finger axis at z = 0 and at z = 6 cm.
+DEFAULT_GRIPPER_KEYPOINTS = (
+    (0.0, 0.0, 0.0),
+    (0.0, 0.0, -0.06),
+    (0.0, 0.06, 0.0),
+    (0.0, -0.06, 0.0),
+    (0.0, 0.06, 0.06),
+    (0.0, -0.06, 0.06),
+)
+
+
+@dataclass(frozen=True)
+class InstantPolicyPreset:
+    """Sizes and learning rate that ``--policy.preset`` fills in."""
+
+    hidden_dim: int
+    num_heads: int
+    local_layers: int
+    context_layers: int
+    action_layers: int
+    encoder_preset: str
+    optimizer_lr: float
+
+
+PRESETS: dict[str, InstantPolicyPreset] = {
+    "small": InstantPolicyPreset(
+        hidden_dim=128, num_heads=4, local_layers=2, context_layers=2, action_layers=2, encoder_preset="small",
+        optimizer_lr=1e-4,
+    ),
+    "paper": InstantPolicyPreset(
+        hidden_dim=1024, num_heads=16, local_layers=2, context_layers=2, action_layers=2, encoder_preset="paper",
+        optimizer_lr=1e-5,
+    ),
+}
+
+
+@PreTrainedConfig.register_subclass("instant_policy")
+@dataclass
+class InstantPolicyConfig(PreTrainedConfig):
+    """Instant Policy (Vosylius & Johns, ICLR 2025): in-context imitation by diffusion over a heterogeneous graph.
+
+    Inputs: ``observation.pointcloud (P, 3)`` segmented object points in the world frame (m) and
+    ``observation.state (8,)`` the EE pose in the world frame (xyz, quaternion xyzw) and ``gripper_open``.
+    Output: ``action (8,)`` absolute EE target poses in the same layout; the network predicts ``horizon`` of them.
+
+    Context and prediction:
+        num_demos: N, demonstrations given as context at evaluation.
+        min_demos, max_demos: range from which N is drawn per training batch.
+        num_waypoints: L, waypoints each demonstration is reduced to (``data.waypoints.extract_waypoints``).
+        horizon: T, future actions predicted per step; action ``j`` is ``j + 1`` frames ahead.
+        inference_steps: K, DDIM denoising steps at inference.
+        diffusion_train_steps: steps of the training noise schedule (squared cosine).
+        num_scene_nodes: M, scene nodes per local graph; the geometry encoder's number of output centroids.
+        gripper_keypoints: the gripper nodes' positions in the EE frame (m), one ``(x, y, z)`` each; at least three
+            not on one line, since each denoising step fits an SE(3) update to them.
+
+    Network (``None``: the preset's value): hidden_dim, num_heads (``hidden_dim`` must divide by it), and the
+    number of graph-transformer layers of σ (``local_layers``, the local graphs), φ (``context_layers``,
+    demonstrations → current) and ψ (``action_layers``, current → actions).
+
+    Geometry encoder (frozen): ``encoder_preset`` (``None``: the preset's) names its architecture; its weights come
+    from ``encoder_weights`` (a ``.safetensors`` written by ``lerobot-ip-pretrain-encoder`` with its ``.json``
+    beside it; ``None``: the weights shipped in ``lerobot_instant_policy/assets/encoder/<encoder_preset>.safetensors``).
+    ``pretrained_encoder=False`` uses a randomly initialised frozen encoder instead (tests, benchmarks).
+    Weights whose recorded architecture differs from ``encoder_preset`` are refused. A checkpoint carries the
+    encoder in its ``model.safetensors``, so the weights file is only read when a policy is built from scratch.
+    ``reencode_action_clouds``: re-encode the live cloud in every action frame at every denoising step (the
+    paper's choice) rather than moving the encoded scene nodes rigidly into the action frames.
+
+    Training: ``gripper_flip_probability`` of the current gripper state being flipped per sample; AdamW with
+    ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-4 for ``small``), linear warmup
+    over ``scheduler_warmup_steps`` then cosine decay to zero, gradients clipped to ``optimizer_grad_clip_norm``.
+
+    Evaluation: the episodes of the env's task in the LeRobotDataset ``demo_repo_id`` at ``demo_root`` (read
+    offline) are the context. Execution: ``n_action_steps`` (≤ ``horizon``) actions of each prediction are run
+    before predicting again, and with ``replan_on_gripper_change`` the queue is dropped after an action that
+    changes the gripper command, so the policy looks again once the gripper has acted.
+    """
+
+    preset: str = "small"
+
+    num_demos: int = 2
+    min_demos: int = 1
+    max_demos: int = 5
+    num_waypoints: int = 10
+    horizon: int = 8
+    inference_steps: int = 4
+    diffusion_train_steps: int = 100
+    num_scene_nodes: int = 16
+    gripper_keypoints: list[list[float]] = field(default_factory=lambda: [list(p) for p in DEFAULT_GRIPPER_KEYPOINTS])
+
+    hidden_dim: int | None = None
+    num_heads: int | None = None
+    local_layers: int | None = None
+    context_layers: int | None = None
+    action_layers: int | None = None
+
+    encoder_preset: str | None = None
+    encoder_weights: str | None = None
+    pretrained_encoder: bool = True
+    reencode_action_clouds: bool = True
+
+    gripper_flip_probability: float = 0.1
+    optimizer_lr: float | None = None
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-2
+    optimizer_grad_clip_norm: float = 1.0
+    scheduler_warmup_steps: int = 500
+
+    demo_repo_id: str | None = None
+    demo_root: str | None = None
+
+    n_action_steps: int = 8
+    replan_on_gripper_change: bool = True
+
+    push_to_hub: bool = False
+
+    input_features: dict[str, PolicyFeature] | None = field(
+        default_factory=lambda: {
+            POINTCLOUD_KEY: PolicyFeature(type=FeatureType.STATE, shape=(NUM_POINTS, 3)),
+            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(8,)),
+        }
+    )
+    output_features: dict[str, PolicyFeature] | None = field(
+        default_factory=lambda: {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(8,))}
+    )
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.IDENTITY,
+            "ENV": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.IDENTITY,
+        }
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; known presets: {sorted(PRESETS)}")
+        preset = PRESETS[self.preset]
+        for name in ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers",
+                     "encoder_preset", "optimizer_lr"):
+            if getattr(self, name) is None:
+                setattr(self, name, getattr(preset, name))
+        self.gripper_keypoints = [[float(value) for value in point] for point in self.gripper_keypoints]
+        self._validate()
+
+    def _validate(self) -> None:
+        _check_range("num_demos (N)", self.num_demos, SUPPORTED_DEMOS)
+        _check_range("min_demos", self.min_demos, SUPPORTED_DEMOS)
+        _check_range("max_demos", self.max_demos, SUPPORTED_DEMOS)
+        if self.min_demos > self.max_demos:
+            raise ValueError(f"min_demos ({self.min_demos}) must not exceed max_demos ({self.max_demos})")
+        _check_range("num_waypoints (L)", self.num_waypoints, SUPPORTED_WAYPOINTS)
+        _check_range("horizon (T)", self.horizon, SUPPORTED_HORIZON)
+        _check_range("inference_steps (K)", self.inference_steps, SUPPORTED_INFERENCE_STEPS)
+        if self.diffusion_train_steps < self.inference_steps:
+            raise ValueError(
+                f"diffusion_train_steps ({self.diffusion_train_steps}) must be at least inference_steps "
+                f"({self.inference_steps})"
+            )
+        if not 1 <= self.n_action_steps <= self.horizon:
+            raise ValueError(f"n_action_steps must lie in 1…horizon ({self.horizon}), got {self.n_action_steps}")
+        if self.n_obs_steps != 1:
+            raise ValueError(
+                f"instant_policy reads the current observation only: n_obs_steps must be 1, got {self.n_obs_steps}"
+            )
+        for name in ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.hidden_dim % self.num_heads:
+            raise ValueError(f"hidden_dim ({self.hidden_dim}) must be divisible by num_heads ({self.num_heads})")
+        keypoints = np.asarray(self.gripper_keypoints, dtype=float)
+        if keypoints.ndim != 2 or keypoints.shape[1] != 3 or not np.isfinite(keypoints).all():
+            raise ValueError(
+                f"gripper_keypoints must be a list of finite (x, y, z) points, got {self.gripper_keypoints}"
+            )
+        if np.linalg.matrix_rank(keypoints - keypoints.mean(axis=0), tol=1e-6) < 2:
+            raise ValueError(
+                "gripper_keypoints need at least 3 points not on one line (an SE(3) update is fitted to them), got "
+                f"{self.gripper_keypoints}"
+            )
+        if not 0.0 <= self.gripper_flip_probability <= 1.0:
+            raise ValueError(f"gripper_flip_probability must lie in [0, 1], got {self.gripper_flip_probability}")
+        if self.optimizer_lr <= 0 or self.optimizer_grad_clip_norm <= 0 or self.scheduler_warmup_steps < 0:
+            raise ValueError(
+                "optimizer_lr and optimizer_grad_clip_norm must be positive and scheduler_warmup_steps "
+                f"non-negative, got {self.optimizer_lr}, {self.optimizer_grad_clip_norm}, {self.scheduler_warmup_steps}"
+            )
+        self._validate_encoder()
+
+    def _validate_encoder(self) -> None:
+        from .model.geometry_encoder import encoder_preset
+        from .model.occupancy import read_sidecar
+
+        architecture = encoder_preset(self.encoder_preset)
+        if architecture.num_nodes != self.num_scene_nodes:
+            raise ValueError(
+                f"num_scene_nodes (M={self.num_scene_nodes}) must equal the {self.encoder_preset!r} geometry encoder's "
+                f"{architecture.num_nodes} output centroids"
+            )
+        if self.encoder_weights is not None and not self.encoder_weights.endswith(".safetensors"):
+            raise ValueError(f"encoder_weights must name a .safetensors file, got {self.encoder_weights!r}")
+        path = self.encoder_weights_path()
+        if self.pretrained_encoder and path.is_file():
+            from .model.geometry_encoder import GeometryEncoderConfig
+
+            found = GeometryEncoderConfig.from_dict(read_sidecar(path)["encoder"])
+            if found != architecture:
+                raise ValueError(
+                    f"encoder weights {path} were trained for encoder config {found.to_dict()}, which is not the "
+                    f"{self.encoder_preset!r} encoder_preset {architecture.to_dict()}; set --policy.encoder_preset "
+                    "to match them or pass other weights"
+                )
+
+    def encoder_weights_path(self) -> Path:
+        """The encoder weights file: ``encoder_weights``, or the shipped weights of ``encoder_preset``."""
+        if self.encoder_weights is not None:
+            return Path(self.encoder_weights).expanduser()
+        return SHIPPED_ENCODER_DIR / f"{self.encoder_preset}.safetensors"
+
+    def require_encoder_weights(self) -> Path:
+        """``encoder_weights_path()`` if it exists; a ``FileNotFoundError`` that says how to get weights if not."""
+        path = self.encoder_weights_path()
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"no geometry encoder weights at {path}: train them with `lerobot-ip-pretrain-encoder --preset "
+                f"{self.encoder_preset} --out FILE.safetensors` and pass --policy.encoder_weights=FILE.safetensors, "
+                "or set --policy.pretrained_encoder=false for a randomly initialised frozen encoder"
+            )
+        return path
+
+    def validate_features(self) -> None:
+        """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)``, writes ``action (8,)``."""
+        inputs = self.input_features or {}
+        outputs = self.output_features or {}
+        problems = []
+        cloud = inputs.get(POINTCLOUD_KEY)
+        if cloud is None or len(cloud.shape) != 2 or cloud.shape[1] != 3 or cloud.shape[0] < 1:
+            problems.append(f"input {POINTCLOUD_KEY!r} of shape (P, 3), got {cloud.shape if cloud else 'nothing'}")
+        state = inputs.get(STATE_KEY)
+        if state is None or tuple(state.shape) != (8,):
+            problems.append(f"input {STATE_KEY!r} of shape (8,), got {state.shape if state else 'nothing'}")
+        action = outputs.get(ACTION_KEY)
+        if action is None or tuple(action.shape) != (8,):
+            problems.append(f"output {ACTION_KEY!r} of shape (8,), got {action.shape if action else 'nothing'}")
+        if problems:
+            raise ValueError("instant_policy needs " + "; ".join(problems))
+
+    @property
+    def num_points(self) -> int:
+        """P, the points per cloud the policy expects (from ``input_features``)."""
+        return int(self.input_features[POINTCLOUD_KEY].shape[0])
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
+        return DiffuserSchedulerConfig(name="cosine", num_warmup_steps=self.scheduler_warmup_steps)
+
+    @property
+    def observation_delta_indices(self) -> None:
+        return None
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        """The actions of the current frame and the ``horizon − 1`` after it: targets ``1 … horizon`` frames ahead."""
+        return list(range(self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+
+def _check_range(name: str, value: int, bounds: tuple[int, int]) -> None:
+    low, high = bounds
+    if not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(f"{name} must be an integer in the supported range {low}…{high}, got {value!r}")

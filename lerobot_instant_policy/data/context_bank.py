@@ -1,0 +1,292 @@
+"""The context bank: every episode of a demonstration dataset reduced to its ``L`` waypoints (DESIGN §6).
+
+During training, each frame of an episode gets as context ``N`` *other* episodes of the same ``task`` (the
+demonstrations of one pseudo-task). The bank is built once, from the dataset's metadata root or from
+``Demonstration`` objects, and holds per episode only what the context graph needs: the waypoints' object points
+(world frame), EE poses and gripper states. It is a plain object, never a module buffer, so it stays out of
+``model.safetensors``. Since the geometry encoder is frozen, its outputs per (episode, waypoint) can be cached
+in the bank too (``encoded``).
+
+Gripper state of a waypoint: the state the demonstrator had commanded up to that frame (``action[t − 1]``'s
+gripper entry; ``state[0]``'s at the first frame). On a clean demonstration this is the observed state; it stays
+right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose (DESIGN §7),
+which would otherwise count as gripper changes.
+
+Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus the cached encoder outputs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from .demonstrations import Demonstration, DemonstrationError, open_demo_dataset
+from .lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from .waypoints import StopCriterion, extract_waypoints
+
+Encoded = torch.Tensor | tuple[torch.Tensor, ...]
+
+
+@dataclass(frozen=True)
+class EpisodeWaypoints:
+    """One episode's waypoints. ``frame_indices (L,)`` within the episode; ``points_world (L, P, 3)`` float32 object
+    points, world frame; ``T_world_ee (L, 4, 4)`` float32 EE poses; ``gripper_open (L,)`` float32, 1 open, 0 closed."""
+
+    episode_index: int
+    task: str
+    frame_indices: np.ndarray
+    points_world: np.ndarray
+    T_world_ee: np.ndarray
+    gripper_open: np.ndarray
+
+
+@dataclass(frozen=True)
+class ContextArrays:
+    """Waypoints of several episodes, indexed like the episode array ``(...)`` they were gathered for:
+    ``points_world (..., L, P, 3)``, ``T_world_ee (..., L, 4, 4)``, ``gripper_open (..., L)`` (float32, world frame)."""
+
+    points_world: np.ndarray
+    T_world_ee: np.ndarray
+    gripper_open: np.ndarray
+
+
+class ContextBank:
+    """Waypoints of every episode of a demonstration dataset, grouped by task. Build it with ``from_dataset``,
+    ``from_dataset_meta`` or ``from_demonstrations``."""
+
+    def __init__(self, waypoints: Sequence[EpisodeWaypoints]):
+        if not waypoints:
+            raise DemonstrationError("a context bank needs at least one episode")
+        shapes = {(item.points_world.shape, item.T_world_ee.shape, item.gripper_open.shape) for item in waypoints}
+        if len(shapes) != 1:
+            raise DemonstrationError(f"every episode must have the same waypoint array shapes, got {sorted(shapes)}")
+        self.episode_indices = np.array([item.episode_index for item in waypoints], dtype=np.int64)
+        if len(set(self.episode_indices.tolist())) != len(waypoints):
+            raise DemonstrationError("episode indices in a context bank must be unique")
+        self.task_of_row = [item.task for item in waypoints]
+        self.frame_indices = np.stack([item.frame_indices for item in waypoints])
+        self.points_world = np.stack([item.points_world for item in waypoints]).astype(np.float32, copy=False)
+        self.T_world_ee = np.stack([item.T_world_ee for item in waypoints]).astype(np.float32, copy=False)
+        self.gripper_open = np.stack([item.gripper_open for item in waypoints]).astype(np.float32, copy=False)
+        self._row_of = {int(episode): row for row, episode in enumerate(self.episode_indices)}
+        by_task: dict[str, list[int]] = {}
+        for episode, task in zip(self.episode_indices.tolist(), self.task_of_row):
+            by_task.setdefault(task, []).append(episode)
+        self._episodes_of_task = {task: np.array(episodes, dtype=np.int64) for task, episodes in by_task.items()}
+        self._encoded: dict[int, Encoded] = {}
+
+    @classmethod
+    def from_dataset(
+        cls,
+        repo_id: str,
+        root: str | Path,
+        num_waypoints: int,
+        episodes: Sequence[int] | None = None,
+        stop: StopCriterion = StopCriterion(),
+    ) -> ContextBank:
+        """The bank of the LeRobotDataset at ``root`` (read offline), all episodes or only ``episodes``.
+
+        Reads every frame's EE state and action, extracts the waypoints, then reads the point clouds of the
+        waypoint frames only. ``DemonstrationError`` names what is wrong with a dataset outside the data contract
+        (a missing ``observation.pointcloud`` or ``observation.state``, …), unknown episodes, an episode with
+        fewer frames than ``num_waypoints``, and NaN or infinite values in the frames it reads.
+        """
+        dataset = open_demo_dataset(repo_id, root)
+        meta_episodes = dataset.meta.episodes
+        known = [int(index) for index in meta_episodes["episode_index"]]
+        wanted = known if episodes is None else [int(index) for index in episodes]
+        missing = sorted(set(wanted) - set(known))
+        if missing:
+            raise DemonstrationError(
+                f"episodes {missing} are not in the dataset at {dataset.root} ({len(known)} episodes)"
+            )
+        position = {episode: row for row, episode in enumerate(known)}
+        frames = dataset.hf_dataset.with_format("numpy", columns=[STATE_KEY, ACTION_KEY])[:]
+        plans = []
+        for episode in wanted:
+            row = meta_episodes[position[episode]]
+            start, stop_index = int(row["dataset_from_index"]), int(row["dataset_to_index"])
+            state, action = frames[STATE_KEY][start:stop_index], frames[ACTION_KEY][start:stop_index]
+            where = f"episode {episode} of the dataset at {dataset.root}"
+            T_world_ee, gripper_open = _poses_and_gripper(state, action, where)
+            chosen = _extract(T_world_ee, gripper_open, num_waypoints, stop, where)
+            plans.append((episode, row["tasks"][0], chosen, start, T_world_ee[chosen], gripper_open[chosen]))
+        rows = np.concatenate([start + chosen for _, _, chosen, start, _, _ in plans])
+        points = dataset.hf_dataset.select(rows).with_format("numpy", columns=[POINTCLOUD_KEY])[:][POINTCLOUD_KEY]
+        points = points.reshape(len(plans), num_waypoints, *points.shape[1:])
+        waypoints = []
+        for (episode, task, chosen, _, T_world_ee, gripper_open), episode_points in zip(plans, points):
+            if not np.isfinite(episode_points).all():
+                raise DemonstrationError(
+                    f"episode {episode} of the dataset at {dataset.root}: {POINTCLOUD_KEY} contains NaN or "
+                    "infinite values"
+                )
+            waypoints.append(EpisodeWaypoints(episode, str(task), chosen, episode_points, T_world_ee, gripper_open))
+        return cls(waypoints)
+
+    @classmethod
+    def from_dataset_meta(cls, dataset_meta, num_waypoints: int, stop: StopCriterion = StopCriterion()) -> ContextBank:
+        """The bank of the dataset a ``LeRobotDatasetMetadata`` describes (its ``repo_id`` and local ``root``)."""
+        return cls.from_dataset(dataset_meta.repo_id, dataset_meta.root, num_waypoints, stop=stop)
+
+    @classmethod
+    def from_demonstrations(
+        cls, demonstrations: Sequence[Demonstration], num_waypoints: int, stop: StopCriterion = StopCriterion()
+    ) -> ContextBank:
+        """The bank of demonstrations handed in from Python; episode ``i`` is ``demonstrations[i]``."""
+        waypoints = []
+        for index, demo in enumerate(demonstrations):
+            where = f"demonstration {index} of task {demo.task!r}"
+            T_world_ee, gripper_open = _poses_and_gripper(demo.state, demo.action, where)
+            chosen = _extract(T_world_ee, gripper_open, num_waypoints, stop, where)
+            points_world = demo.points_world[chosen]
+            waypoints.append(
+                EpisodeWaypoints(index, demo.task, chosen, points_world, T_world_ee[chosen], gripper_open[chosen])
+            )
+        return cls(waypoints)
+
+    def __len__(self) -> int:
+        return len(self.episode_indices)
+
+    @property
+    def num_waypoints(self) -> int:
+        return self.points_world.shape[1]
+
+    @property
+    def num_points(self) -> int:
+        return self.points_world.shape[2]
+
+    @property
+    def tasks(self) -> list[str]:
+        return sorted(self._episodes_of_task)
+
+    def episodes_of_task(self, task: str) -> np.ndarray:
+        """Episode indices ``(E_task,)`` of ``task``; ``DemonstrationError`` listing the bank's tasks if none."""
+        episodes = self._episodes_of_task.get(task)
+        if episodes is None:
+            raise DemonstrationError(f"no episode of task {task!r} in the context bank; it has tasks {self.tasks}")
+        return episodes.copy()
+
+    def episode(self, episode_index: int) -> EpisodeWaypoints:
+        row = self._row(episode_index)
+        return EpisodeWaypoints(
+            int(episode_index),
+            self.task_of_row[row],
+            self.frame_indices[row],
+            self.points_world[row],
+            self.T_world_ee[row],
+            self.gripper_open[row],
+        )
+
+    def sample_context(self, episode_index: int, num_demos: int, rng: np.random.Generator) -> np.ndarray:
+        """``num_demos`` episode indices ``(N,)`` of other episodes with ``episode_index``'s task, in random order.
+
+        Drawn without replacement when the task has at least ``N`` other episodes. With fewer, every other episode
+        is used and the rest are drawn again from them (with replacement), so that N, and with it the shape of a
+        training batch, never depends on the task. ``DemonstrationError`` when the task has no other episode.
+        """
+        if num_demos < 1:
+            raise DemonstrationError(f"num_demos must be at least 1, got {num_demos}")
+        task = self.task_of_row[self._row(episode_index)]
+        others = self._episodes_of_task[task]
+        others = others[others != episode_index]
+        if len(others) == 0:
+            raise DemonstrationError(
+                f"task {task!r} has only episode {episode_index} in the context bank: a context needs another episode"
+            )
+        if len(others) >= num_demos:
+            return rng.choice(others, size=num_demos, replace=False)
+        extra = rng.choice(others, size=num_demos - len(others), replace=True)
+        return rng.permutation(np.concatenate([others, extra]))
+
+    def gather(self, episode_indices) -> ContextArrays:
+        """The waypoints of ``episode_indices`` (an int array of any shape ``(...)``)."""
+        rows = self._rows(episode_indices)
+        return ContextArrays(self.points_world[rows], self.T_world_ee[rows], self.gripper_open[rows])
+
+    def points_ee(self, episode_index: int) -> np.ndarray:
+        """``(L, P, 3)`` float32: each waypoint's object points in its own EE frame, ``R_WEᵀ (p − t_WE)``."""
+        row = self._row(episode_index)
+        rotations, translations = self.T_world_ee[row, :, :3, :3], self.T_world_ee[row, :, :3, 3]
+        return np.einsum("lpi,lij->lpj", self.points_world[row] - translations[:, None], rotations).astype(np.float32)
+
+    def encoded(self, episode_indices, encode: Callable[[torch.Tensor], Encoded], chunk_size: int = 64) -> Encoded:
+        """Frozen-encoder outputs of the waypoints of ``episode_indices (...)``, cached per (episode, waypoint).
+
+        ``encode`` maps waypoint clouds in their EE frames, ``points_ee (K, P, 3)`` float32 on the CPU, to a tensor
+        or a tuple of tensors with leading dimension ``K`` (e.g. the geometry encoder's ``node_positions (K, M, 3)``
+        and ``node_features (K, M, D)``); it runs under ``torch.no_grad`` on at most ``chunk_size`` episodes' waypoints
+        at a time, once per episode. The result has each output's shape with ``K`` replaced by ``(..., L)``, on the
+        device ``encode`` returned. The cache belongs to one encoder: call ``clear_encoded`` before using another.
+        """
+        rows = self._rows(episode_indices)
+        missing = [int(episode) for episode in dict.fromkeys(self.episode_indices[rows].reshape(-1).tolist())
+                   if episode not in self._encoded]
+        for start in range(0, len(missing), chunk_size):
+            chunk = missing[start : start + chunk_size]
+            points = torch.from_numpy(np.concatenate([self.points_ee(episode) for episode in chunk]))
+            with torch.no_grad():
+                outputs = encode(points)
+            single = isinstance(outputs, torch.Tensor)
+            outputs = (outputs,) if single else tuple(outputs)
+            for output in outputs:
+                if output.shape[0] != len(points):
+                    raise ValueError(f"encode returned {output.shape[0]} items for {len(points)} clouds")
+            for offset, episode in enumerate(chunk):
+                window = slice(offset * self.num_waypoints, (offset + 1) * self.num_waypoints)
+                parts = tuple(output[window].detach() for output in outputs)
+                self._encoded[episode] = parts[0] if single else parts
+        flat = self.episode_indices[rows].reshape(-1).tolist()
+        first = self._encoded[flat[0]]
+        if isinstance(first, torch.Tensor):
+            return torch.stack([self._encoded[episode] for episode in flat]).reshape(*rows.shape, *first.shape)
+        return tuple(
+            torch.stack([self._encoded[episode][part] for episode in flat]).reshape(*rows.shape, *first[part].shape)
+            for part in range(len(first))
+        )
+
+    def clear_encoded(self) -> None:
+        self._encoded.clear()
+
+    @property
+    def num_encoded(self) -> int:
+        """Episodes whose encoder outputs are cached."""
+        return len(self._encoded)
+
+    def _row(self, episode_index: int) -> int:
+        row = self._row_of.get(int(episode_index))
+        if row is None:
+            raise DemonstrationError(f"episode {episode_index} is not in the context bank ({len(self)} episodes)")
+        return row
+
+    def _rows(self, episode_indices) -> np.ndarray:
+        indices = np.asarray(episode_indices, dtype=np.int64)
+        if indices.size == 0:
+            raise DemonstrationError("no episodes asked for")
+        return np.vectorize(self._row, otypes=[np.int64])(indices)
+
+
+def _poses_and_gripper(state: np.ndarray, action: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``T_world_ee (F, 4, 4)`` from ``state (F, 8)`` and the commanded gripper state ``(F,)`` (see module doc)."""
+    if not (np.isfinite(state).all() and np.isfinite(action).all()):
+        raise DemonstrationError(f"{where}: {STATE_KEY} or {ACTION_KEY} contains NaN or infinite values")
+    T_world_ee = np.tile(np.eye(4), (len(state), 1, 1))
+    try:
+        T_world_ee[:, :3, :3] = Rotation.from_quat(state[:, 3:7].astype(np.float64)).as_matrix()
+    except ValueError as error:
+        raise DemonstrationError(f"{where}: {STATE_KEY} holds an invalid EE quaternion ({error})") from error
+    T_world_ee[:, :3, 3] = state[:, :3]
+    gripper_open = np.concatenate([state[:1, 7], action[:-1, 7]]).astype(np.float64)
+    return T_world_ee, gripper_open
+
+
+def _extract(T_world_ee, gripper_open, num_waypoints: int, stop: StopCriterion, where: str) -> np.ndarray:
+    try:
+        return extract_waypoints(T_world_ee, gripper_open, num_waypoints, stop)
+    except ValueError as error:
+        raise DemonstrationError(f"{where}: {error}") from error
