@@ -15,6 +15,7 @@ from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTr
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
 from .data.lerobot_format import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, STATE_KEY
+from .geometry.gripper import GRIPPER_KEYPOINTS
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
@@ -25,16 +26,7 @@ SUPPORTED_WAYPOINTS = (2, 32)
 SUPPORTED_HORIZON = (1, 32)
 SUPPORTED_INFERENCE_STEPS = (1, 8)
 
-# Gripper keypoints in the EE frame (m) of the authors' code (z: approach axis, y: finger axis): the EE origin, 6 cm
-# back along the approach axis, and ±6 cm along the finger axis at z = 0 and at z = 6 cm.
-DEFAULT_GRIPPER_KEYPOINTS = (
-    (0.0, 0.0, 0.0),
-    (0.0, 0.0, -0.06),
-    (0.0, 0.06, 0.0),
-    (0.0, -0.06, 0.0),
-    (0.0, 0.06, 0.06),
-    (0.0, -0.06, 0.06),
-)
+DEFAULT_GRIPPER_KEYPOINTS = GRIPPER_KEYPOINTS
 
 
 @dataclass(frozen=True)

@@ -138,8 +138,8 @@ def _table(root) -> dict[str, np.ndarray]:
 def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with_more_workers(tmp_path):
     from lerobot.datasets import LeRobotDataset
 
-    from lerobot_instant_policy.data.generation import generate_shard, prepare_output, shard_ranges
     from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+    from lerobot_instant_policy.data.generation import generate_shard, prepare_output, shard_ranges
 
     arguments = ["--num-tasks", "2", "--demos-per-task", "2", "--seed", "7", "--tasks-per-shard", "1"]
     fresh, resumed = tmp_path / "fresh", tmp_path / "resumed"

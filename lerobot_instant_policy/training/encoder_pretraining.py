@@ -147,7 +147,7 @@ def pretrain(config: PretrainConfig, out: Path, resume: bool = True, progress: b
     step, elapsed = 0, 0.0
     state_file = resume_path(out)
     if resume and state_file.is_file():
-        state = torch.load(state_file, weights_only=False)
+        state = torch.load(state_file, weights_only=True)
         if state["config"] != dataclasses.asdict(config):
             raise ValueError(f"{state_file} was written by a run with other settings; pass --no-resume to start over")
         network.load_state_dict(state["network"])

@@ -1,0 +1,101 @@
+"""Heterogeneous graph transformer (paper eq. 3, appendix C): the σ, φ and ψ networks.
+
+One layer runs a PyG :class:`TransformerConv` with ``edge_dim`` per edge type (its own weights ``W₁ … W₅``: skip,
+value, query, key and edge projections), sums the results per destination node type (:class:`HeteroConv`), then
+applies ``LayerNorm(x + attention)`` and ``LayerNorm(h + MLP(h))`` per node type. Node types that receive no edge in
+a layer keep their features.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterable, Mapping
+
+import torch
+from torch import nn
+from torch_geometric.nn import HeteroConv, TransformerConv
+
+from .graph import EdgeType
+
+
+class HeteroGraphTransformerLayer(nn.Module):
+    """One attention + MLP block over the edge types in ``edge_dims`` (edge type → attribute width)."""
+
+    def __init__(self, edge_dims: Mapping[EdgeType, int], hidden_dim: int, num_heads: int, mlp_ratio: int):
+        super().__init__()
+        if hidden_dim % num_heads:
+            raise ValueError(f"hidden_dim {hidden_dim} is not divisible by num_heads {num_heads}")
+        with warnings.catch_warnings():
+            # Source-only node types (e.g. scene nodes in σ's last layer) are intended: they only send messages.
+            warnings.filterwarnings("ignore", message="There exist node types")
+            self.attention = HeteroConv(
+                {
+                    edge_type: TransformerConv(hidden_dim, hidden_dim // num_heads, heads=num_heads, edge_dim=edge_dim)
+                    for edge_type, edge_dim in edge_dims.items()
+                },
+                aggr="sum",
+            )
+        destinations = sorted({edge_type[2] for edge_type in edge_dims})
+        self.attention_norm = nn.ModuleDict({node: nn.LayerNorm(hidden_dim) for node in destinations})
+        self.mlp = nn.ModuleDict(
+            {
+                node: nn.Sequential(
+                    nn.Linear(hidden_dim, mlp_ratio * hidden_dim), nn.GELU(), nn.Linear(mlp_ratio * hidden_dim, hidden_dim)
+                )
+                for node in destinations
+            }
+        )
+        self.mlp_norm = nn.ModuleDict({node: nn.LayerNorm(hidden_dim) for node in destinations})
+
+    def forward(
+        self,
+        x_dict: dict[str, torch.Tensor],
+        edge_index_dict: dict[EdgeType, torch.Tensor],
+        edge_attr_dict: dict[EdgeType, torch.Tensor],
+    ) -> dict[str, torch.Tensor]:
+        attended = self.attention(x_dict, edge_index_dict, edge_attr_dict=edge_attr_dict)
+        out = dict(x_dict)
+        for node, update in attended.items():
+            hidden = self.attention_norm[node](x_dict[node] + update)
+            out[node] = self.mlp_norm[node](hidden + self.mlp[node](hidden))
+        return out
+
+
+class HeteroGraphTransformer(nn.Module):
+    """A stack of :class:`HeteroGraphTransformerLayer` whose result is read at ``output_node_types`` only.
+
+    The last layer keeps only the edge types that end at an output node type: updates of other node types there
+    would never be read.
+    """
+
+    def __init__(
+        self,
+        edge_dims: Mapping[EdgeType, int],
+        output_node_types: Iterable[str],
+        num_layers: int,
+        hidden_dim: int,
+        num_heads: int,
+        mlp_ratio: int,
+    ):
+        super().__init__()
+        self.output_node_types = tuple(output_node_types)
+        if num_layers < 1:
+            raise ValueError(f"num_layers must be at least 1, got {num_layers}")
+        last_dims = {edge_type: dim for edge_type, dim in edge_dims.items() if edge_type[2] in self.output_node_types}
+        if not last_dims:
+            raise ValueError(f"no edge type ends at the output node types {self.output_node_types}")
+        self.layers = nn.ModuleList(
+            HeteroGraphTransformerLayer(edge_dims if index < num_layers - 1 else last_dims, hidden_dim, num_heads, mlp_ratio)
+            for index in range(num_layers)
+        )
+
+    def forward(
+        self,
+        x_dict: dict[str, torch.Tensor],
+        edge_index_dict: dict[EdgeType, torch.Tensor],
+        edge_attr_dict: dict[EdgeType, torch.Tensor],
+    ) -> dict[str, torch.Tensor]:
+        """``x_dict``: node type → ``(num_nodes, hidden_dim)``; returns the output node types' features."""
+        for layer in self.layers:
+            x_dict = layer(x_dict, edge_index_dict, edge_attr_dict)
+        return {node: x_dict[node] for node in self.output_node_types}

@@ -1,0 +1,480 @@
+"""The Instant Policy network: frozen geometry encoder, graph, σ / φ / ψ and the action diffusion (paper §3).
+
+Frames: ``W`` is a world frame (each demonstration and the live scene may have their own); ``E`` is the end-effector
+frame of a time step; ``A`` an action frame. Inputs to the network:
+
+- demonstrations: ``demo_points_world (B, N, L, P, 3)``, ``demo_T_world_ee (B, N, L, 4, 4)``, ``demo_gripper
+  (B, N, L)`` (1 open, 0 closed);
+- the current observation: ``points_world (B, P, 3)``, ``T_world_ee (B, 4, 4)``, ``gripper (B,)`` (1 open, 0 closed);
+- training targets: ``T_ee_actions (B, T, 4, 4)``, the action poses ``T_EA`` in the current EE frame, and
+  ``action_gripper (B, T)`` (1 open, 0 closed).
+
+Every cloud enters the encoder in its own EE frame (``T_EW · P``); only relative transforms between frames of one
+world enter the graph, so the predicted relative actions do not depend on where a world is.
+
+A control step is :meth:`InstantPolicyNetwork.encode_context` (encoder on demos and current cloud, σ on their local
+graphs, φ — none of it depends on the noisy actions) followed by :meth:`~InstantPolicyNetwork.sample_actions`, which
+runs only the action part (:meth:`~InstantPolicyNetwork.denoise`: σ on the action local graphs, ψ, heads) in each
+of the K DDIM iterations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from ..geometry.gripper import GRIPPER_KEYPOINTS
+from .action_diffusion import FLOW_DIM, ActionDiffusion, invert_rigid, points_in_action_frames
+from .encodings import encoding_dim, sinusoidal_encoding
+from .geometry_encoder import GeometryEncoder, GeometryEncoderConfig, encoder_preset
+from .graph import (
+    ACTION,
+    ACTION_TO_ACTION,
+    CURRENT,
+    CURRENT_TO_ACTION,
+    DEMO,
+    DEMO_TIME,
+    DEMO_TO_CURRENT,
+    GRIPPER,
+    GRIPPER_TO_GRIPPER,
+    SCENE,
+    SCENE_TO_GRIPPER,
+    SCENE_TO_SCENE,
+    action_edge_dims,
+    action_graph,
+    context_edge_dims,
+    context_graph,
+    keypoint_offset_attr,
+    local_edge_dims,
+    local_graph,
+    position_attr,
+    transform_attr,
+)
+from .graph_transformer import HeteroGraphTransformer
+
+
+@dataclass(frozen=True)
+class InstantPolicyNetworkConfig:
+    """Sizes of the network and of its diffusion; JSON-serialisable with :meth:`to_dict` / :meth:`from_dict`.
+
+    ``hidden_dim``, ``num_heads``, ``num_layers`` and ``mlp_ratio`` apply to each of σ, φ and ψ.
+    ``reencode_action_clouds``: True re-encodes the live cloud in every action frame at every denoising step (the
+    paper's choice); False moves the current scene nodes rigidly into the action frames (no encoder in the loop).
+    """
+
+    hidden_dim: int = 128
+    num_heads: int = 4
+    num_layers: int = 2
+    mlp_ratio: int = 4
+    encoder: GeometryEncoderConfig = field(default_factory=lambda: encoder_preset("small"))
+    num_points: int = 2048
+    prediction_horizon: int = 8
+    num_train_timesteps: int = 100
+    num_inference_steps: int = 4
+    max_translation: float = 0.01
+    max_rotation_deg: float = 3.0
+    gripper_keypoints: tuple[tuple[float, float, float], ...] = GRIPPER_KEYPOINTS
+    num_frequencies: int = 10
+    reencode_action_clouds: bool = True
+    max_num_demos: int = 8
+    max_demo_length: int = 32
+
+    def __post_init__(self):
+        if isinstance(self.encoder, dict):
+            object.__setattr__(self, "encoder", GeometryEncoderConfig.from_dict(self.encoder))
+        object.__setattr__(self, "gripper_keypoints", tuple(tuple(float(c) for c in k) for k in self.gripper_keypoints))
+        positive = ("hidden_dim", "num_heads", "num_layers", "mlp_ratio", "prediction_horizon", "num_train_timesteps",
+                    "num_frequencies", "max_num_demos", "max_demo_length")
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.hidden_dim % self.num_heads:
+            raise ValueError(f"hidden_dim {self.hidden_dim} must be divisible by num_heads {self.num_heads}")
+        if not 1 <= self.num_inference_steps <= self.num_train_timesteps:
+            raise ValueError(f"num_inference_steps must be in 1…{self.num_train_timesteps}, got {self.num_inference_steps}")
+        if self.num_points < self.encoder.num_centroids[0]:
+            raise ValueError(f"num_points {self.num_points} is below the encoder's {self.encoder.num_centroids[0]} centroids")
+        if len(self.gripper_keypoints) < 3 or any(len(k) != 3 for k in self.gripper_keypoints):
+            raise ValueError("gripper_keypoints needs at least 3 points of 3 coordinates (an SE(3) fit needs 3)")
+        if self.max_translation <= 0 or self.max_rotation_deg <= 0:
+            raise ValueError("max_translation and max_rotation_deg must be positive")
+
+    def to_dict(self) -> dict:
+        values = dataclasses.asdict(self)
+        values["encoder"] = self.encoder.to_dict()
+        values["gripper_keypoints"] = [list(k) for k in self.gripper_keypoints]
+        return values
+
+    @classmethod
+    def from_dict(cls, values: dict) -> InstantPolicyNetworkConfig:
+        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown InstantPolicyNetworkConfig keys {sorted(unknown)}")
+        return cls(**values)
+
+
+NETWORK_PRESETS: dict[str, dict] = {
+    "small": dict(hidden_dim=128, num_heads=4, mlp_ratio=4, encoder=encoder_preset("small")),
+    "paper": dict(hidden_dim=1024, num_heads=16, mlp_ratio=4, encoder=encoder_preset("paper")),
+}
+
+
+def network_preset(name: str, **overrides) -> InstantPolicyNetworkConfig:
+    """``small`` (hidden 128, 4 heads, CPU) or ``paper`` (hidden 1024, 16 heads × 64), with field overrides."""
+    if name not in NETWORK_PRESETS:
+        raise ValueError(f"unknown network preset {name!r}; known: {sorted(NETWORK_PRESETS)}")
+    return InstantPolicyNetworkConfig(**{**NETWORK_PRESETS[name], **overrides})
+
+
+@dataclass
+class InstantPolicyContext:
+    """What one control step computes once and every denoising iteration reuses.
+
+    Attributes:
+        current_gripper_features: ``(B, K, H)`` φ's output at the current gripper nodes (the paper's bottleneck).
+        points_ee: ``(B, P, 3)`` the live cloud in the current EE frame.
+        scene_positions_ee: ``(B, M, 3)`` the current scene nodes in the EE frame.
+        scene_features: ``(B, M, D)`` their encoder features.
+    """
+
+    current_gripper_features: torch.Tensor
+    points_ee: torch.Tensor
+    scene_positions_ee: torch.Tensor
+    scene_features: torch.Tensor
+
+    @property
+    def batch_size(self) -> int:
+        return self.points_ee.shape[0]
+
+
+def _transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """``T (..., 4, 4)`` applied to ``points (..., P, 3)``."""
+    return points @ T[..., :3, :3].transpose(-1, -2) + T[..., None, :3, 3]
+
+
+def _head(hidden_dim: int, out_dim: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(hidden_dim, hidden_dim), nn.GELU(), nn.Linear(hidden_dim, out_dim))
+
+
+class InstantPolicyNetwork(nn.Module):
+    """Graph-diffusion network of Instant Policy. The geometry encoder is frozen (no gradients, always eval)."""
+
+    def __init__(self, config: InstantPolicyNetworkConfig | None = None):
+        super().__init__()
+        self.config = config = config or InstantPolicyNetworkConfig()
+        hidden, num_keypoints = config.hidden_dim, len(config.gripper_keypoints)
+        self.geometry_encoder = GeometryEncoder(config.encoder).requires_grad_(False)
+        self.register_buffer(
+            "gripper_keypoints", torch.tensor(config.gripper_keypoints, dtype=torch.float32), persistent=False
+        )
+        self.scene_projection = nn.Linear(config.encoder.feature_dim, hidden)
+        # Observation (demo and current) gripper nodes and action gripper nodes have separate embeddings, one per
+        # keypoint and, for actions, per action step: action step 0 never shares an embedding with the current frame.
+        self.observation_keypoint_embedding = nn.Embedding(num_keypoints, hidden)
+        self.action_keypoint_embedding = nn.Embedding(config.prediction_horizon * num_keypoints, hidden)
+        self.gripper_state_embedding = nn.Embedding(2, hidden)
+        self.action_gripper_embedding = nn.Linear(1, hidden)
+        self.timestep_embedding = nn.Sequential(
+            nn.Linear(encoding_dim(1, config.num_frequencies), hidden), nn.GELU(), nn.Linear(hidden, hidden)
+        )
+        stage = dict(num_layers=config.num_layers, hidden_dim=hidden, num_heads=config.num_heads,
+                     mlp_ratio=config.mlp_ratio)
+        self.local_network = HeteroGraphTransformer(local_edge_dims(config.num_frequencies), [GRIPPER], **stage)
+        self.context_network = HeteroGraphTransformer(context_edge_dims(config.num_frequencies), [CURRENT], **stage)
+        self.action_network = HeteroGraphTransformer(action_edge_dims(config.num_frequencies), [ACTION], **stage)
+        self.translation_head = _head(hidden, 3)
+        self.rotation_head = _head(hidden, 3)
+        self.gripper_head = _head(hidden, 1)
+        self.diffusion = ActionDiffusion(
+            config.prediction_horizon,
+            self.gripper_keypoints,
+            config.num_train_timesteps,
+            config.max_translation,
+            math.radians(config.max_rotation_deg),
+        )
+
+    def train(self, mode: bool = True) -> InstantPolicyNetwork:
+        super().train(mode)
+        self.geometry_encoder.eval()
+        return self
+
+    @property
+    def num_keypoints(self) -> int:
+        return len(self.config.gripper_keypoints)
+
+    def _keypoints(self, like: torch.Tensor) -> torch.Tensor:
+        return self.gripper_keypoints.to(dtype=like.dtype, device=like.device)
+
+    # ------------------------------------------------------------------ input checks
+    def _check_cloud(self, name: str, points: torch.Tensor, leading: tuple[int, ...]) -> None:
+        expected = (*leading, self.config.num_points, 3)
+        if points.ndim != len(expected) or points.shape[-1] != 3:
+            raise ValueError(f"{name} must have shape {tuple(expected)}, got {tuple(points.shape)}")
+        if points.shape[-2] != self.config.num_points:
+            raise ValueError(
+                f"{name} has {points.shape[-2]} points per cloud but the network is configured for "
+                f"num_points={self.config.num_points}; resample the clouds"
+            )
+        if tuple(points.shape[:-2]) != tuple(leading):
+            raise ValueError(f"{name} must have shape {tuple(expected)}, got {tuple(points.shape)}")
+        if not torch.isfinite(points).all():
+            raise ValueError(f"{name} contains NaN or inf coordinates")
+
+    @staticmethod
+    def _check_tensor(name: str, value: torch.Tensor, shape: tuple[int, ...]) -> None:
+        if tuple(value.shape) != tuple(shape):
+            raise ValueError(f"{name} must have shape {tuple(shape)}, got {tuple(value.shape)}")
+        if not torch.isfinite(value).all():
+            raise ValueError(f"{name} contains NaN or inf values")
+
+    def check_demo_size(self, num_demos: int, demo_length: int) -> None:
+        """Raise ``ValueError`` unless ``1 ≤ N ≤ max_num_demos`` and ``1 ≤ L ≤ max_demo_length``."""
+        if not 1 <= num_demos <= self.config.max_num_demos:
+            raise ValueError(f"number of demonstrations N={num_demos} is outside 1…{self.config.max_num_demos}")
+        if not 1 <= demo_length <= self.config.max_demo_length:
+            raise ValueError(f"demonstration length L={demo_length} is outside 1…{self.config.max_demo_length}")
+
+    # ------------------------------------------------------------------ node features
+    def encode_clouds(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frozen encoder on clouds ``(..., P, 3)`` (any frame) → positions ``(..., M, 3)``, features ``(..., M, D)``."""
+        leading = points.shape[:-2]
+        with torch.no_grad():
+            positions, features = self.geometry_encoder(points.reshape(-1, *points.shape[-2:]))
+        return positions.view(*leading, *positions.shape[1:]), features.view(*leading, *features.shape[1:])
+
+    def observation_gripper_features(self, gripper_open: torch.Tensor) -> torch.Tensor:
+        """Gripper-node features of observed frames: ``gripper_open (...)`` in {0, 1} → ``(..., K, H)``."""
+        state = self.gripper_state_embedding((gripper_open > 0.5).long())
+        return self.observation_keypoint_embedding.weight + state[..., None, :]
+
+    def action_gripper_features(self, gripper: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
+        """Gripper-node features of actions: ``gripper (B, T)`` in [−1, 1], ``timesteps (B,)`` → ``(B, T, K, H)``."""
+        keypoint = self.action_keypoint_embedding.weight.view(self.config.prediction_horizon, self.num_keypoints, -1)
+        value = self.action_gripper_embedding(gripper[..., None].to(keypoint.dtype))
+        phase = (timesteps.to(keypoint.dtype) / self.config.num_train_timesteps)[:, None]
+        timestep = self.timestep_embedding(sinusoidal_encoding(phase, self.config.num_frequencies))
+        return keypoint + value[:, :, None] + timestep[:, None, None]
+
+    def _local_gripper_features(
+        self, scene_positions: torch.Tensor, scene_features: torch.Tensor, gripper_features: torch.Tensor
+    ) -> torch.Tensor:
+        """σ on G local graphs: scene ``(G, M, 3)``, ``(G, M, D)``, gripper ``(G, K, H)`` → gripper ``(G, K, H)``."""
+        num_graphs, num_scene = scene_positions.shape[:2]
+        graph = local_graph(num_graphs, num_scene, self.num_keypoints, scene_positions.device)
+        keypoints = self._keypoints(scene_positions)
+        scene_flat = scene_positions.reshape(-1, 3)
+        gripper_flat = keypoints.repeat(num_graphs, 1)
+        frequencies = self.config.num_frequencies
+        edge_attr = {
+            SCENE_TO_SCENE: position_attr(scene_flat, scene_flat, graph[SCENE_TO_SCENE].edge_index, frequencies),
+            SCENE_TO_GRIPPER: position_attr(scene_flat, gripper_flat, graph[SCENE_TO_GRIPPER].edge_index, frequencies),
+            GRIPPER_TO_GRIPPER: position_attr(
+                gripper_flat, gripper_flat, graph[GRIPPER_TO_GRIPPER].edge_index, frequencies
+            ),
+        }
+        x = {
+            SCENE: self.scene_projection(scene_features.reshape(-1, scene_features.shape[-1])),
+            GRIPPER: gripper_features.reshape(-1, gripper_features.shape[-1]),
+        }
+        out = self.local_network(x, graph.edge_index_dict, edge_attr)[GRIPPER]
+        return out.view(num_graphs, self.num_keypoints, -1)
+
+    # ------------------------------------------------------------------ context (once per control step)
+    def encode_demo_geometry(
+        self, demo_points_world: torch.Tensor, demo_T_world_ee: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Encode demo clouds in their EE frames: ``(B, N, L, P, 3)``, ``(B, N, L, 4, 4)`` → scene node positions
+        ``(B, N, L, M, 3)`` (EE frame of each waypoint) and features ``(B, N, L, M, D)``. Cacheable per demo set."""
+        batch, num_demos, demo_length = demo_points_world.shape[:3]
+        self.check_demo_size(num_demos, demo_length)
+        self._check_cloud("demo_points_world", demo_points_world, (batch, num_demos, demo_length))
+        self._check_tensor("demo_T_world_ee", demo_T_world_ee, (batch, num_demos, demo_length, 4, 4))
+        return self.encode_clouds(_transform_points(invert_rigid(demo_T_world_ee), demo_points_world))
+
+    def encode_context(
+        self,
+        demo_points_world: torch.Tensor | None,
+        demo_T_world_ee: torch.Tensor,
+        demo_gripper: torch.Tensor,
+        points_world: torch.Tensor,
+        T_world_ee: torch.Tensor,
+        gripper: torch.Tensor,
+        demo_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> InstantPolicyContext:
+        """Run everything that does not depend on the noisy actions: encoder, σ on demo and current graphs, φ.
+
+        Args:
+            demo_points_world: ``(B, N, L, P, 3)`` demo clouds, each in its demo's world frame; may be None when
+                ``demo_geometry`` (from :meth:`encode_demo_geometry`) is given.
+            demo_T_world_ee: ``(B, N, L, 4, 4)`` demo EE poses in their world frames.
+            demo_gripper: ``(B, N, L)`` demo gripper states, 1 open, 0 closed.
+            points_world: ``(B, P, 3)`` the live cloud in the world frame.
+            T_world_ee: ``(B, 4, 4)`` the current EE pose in the world frame.
+            gripper: ``(B,)`` the current gripper state, 1 open, 0 closed.
+        """
+        if demo_T_world_ee.ndim != 5:
+            raise ValueError(f"demo_T_world_ee must have shape (B, N, L, 4, 4), got {tuple(demo_T_world_ee.shape)}")
+        batch, num_demos, demo_length = demo_T_world_ee.shape[:3]
+        self.check_demo_size(num_demos, demo_length)
+        self._check_tensor("demo_T_world_ee", demo_T_world_ee, (batch, num_demos, demo_length, 4, 4))
+        self._check_tensor("demo_gripper", demo_gripper, (batch, num_demos, demo_length))
+        self._check_cloud("points_world", points_world, (batch,))
+        self._check_tensor("T_world_ee", T_world_ee, (batch, 4, 4))
+        self._check_tensor("gripper", gripper, (batch,))
+        if demo_geometry is None:
+            if demo_points_world is None:
+                raise ValueError("give demo_points_world or demo_geometry")
+            demo_geometry = self.encode_demo_geometry(demo_points_world, demo_T_world_ee)
+        demo_positions, demo_features = demo_geometry
+        num_scene = self.config.encoder.num_nodes
+        self._check_tensor("demo scene positions", demo_positions, (batch, num_demos, demo_length, num_scene, 3))
+        feature_shape = (batch, num_demos, demo_length, num_scene, self.config.encoder.feature_dim)
+        self._check_tensor("demo scene features", demo_features, feature_shape)
+
+        points_ee = _transform_points(invert_rigid(T_world_ee), points_world)
+        scene_positions, scene_features = self.encode_clouds(points_ee)
+        positions = torch.cat([demo_positions.flatten(1, 2), scene_positions[:, None]], dim=1)
+        features = torch.cat([demo_features.flatten(1, 2), scene_features[:, None]], dim=1)
+        states = torch.cat([demo_gripper.flatten(1, 2), gripper[:, None]], dim=1)
+        frames = num_demos * demo_length + 1
+        gripper_features = self._local_gripper_features(
+            positions.flatten(0, 1), features.flatten(0, 1), self.observation_gripper_features(states).flatten(0, 1)
+        ).view(batch, frames, self.num_keypoints, -1)
+
+        graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, points_world.device)
+        keypoints = self._keypoints(points_world)
+        demo_frames = demo_T_world_ee.reshape(-1, 4, 4)
+        edge_attr = {
+            DEMO_TIME: transform_attr(demo_frames, demo_frames, graph[DEMO_TIME], keypoints, self.config.num_frequencies),
+            DEMO_TO_CURRENT: keypoint_offset_attr(graph[DEMO_TO_CURRENT], keypoints, self.config.num_frequencies),
+        }
+        x = {
+            DEMO: gripper_features[:, :-1].reshape(-1, gripper_features.shape[-1]),
+            CURRENT: gripper_features[:, -1].reshape(-1, gripper_features.shape[-1]),
+        }
+        current = self.context_network(x, graph.edge_index_dict, edge_attr)[CURRENT]
+        return InstantPolicyContext(
+            current_gripper_features=current.view(batch, self.num_keypoints, -1),
+            points_ee=points_ee,
+            scene_positions_ee=scene_positions,
+            scene_features=scene_features,
+        )
+
+    # ------------------------------------------------------------------ action part (every denoising step)
+    def denoise(
+        self,
+        context: InstantPolicyContext,
+        T_ee_actions: torch.Tensor,
+        action_gripper: torch.Tensor,
+        timesteps: torch.Tensor,
+    ) -> torch.Tensor:
+        """Predict, per action gripper keypoint, normalised flows and the clean gripper value.
+
+        Args:
+            context: from :meth:`encode_context`.
+            T_ee_actions: ``(B, T, 4, 4)`` noisy action poses in the current EE frame.
+            action_gripper: ``(B, T)`` noisy gripper values in [−1, 1].
+            timesteps: ``(B,)`` diffusion timesteps in ``0 … num_train_timesteps − 1``.
+
+        Returns:
+            ``(B, T, K, 7)``: translation flow (3) and rotation flow (3), normalised as in
+            :meth:`ActionDiffusion.flow_targets`, then the predicted clean gripper value in [−1, 1] terms.
+        """
+        batch, horizon = context.batch_size, self.config.prediction_horizon
+        self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
+        self._check_tensor("action_gripper", action_gripper, (batch, horizon))
+        if self.config.reencode_action_clouds:
+            scene_positions, scene_features = self.encode_clouds(points_in_action_frames(context.points_ee, T_ee_actions))
+        else:
+            scene_positions = points_in_action_frames(context.scene_positions_ee, T_ee_actions)
+            scene_features = context.scene_features[:, None].expand(-1, horizon, -1, -1)
+        gripper_features = self._local_gripper_features(
+            scene_positions.flatten(0, 1),
+            scene_features.flatten(0, 1),
+            self.action_gripper_features(action_gripper, timesteps).flatten(0, 1),
+        )
+
+        graph = action_graph(batch, horizon, self.num_keypoints, T_ee_actions.device)
+        keypoints = self._keypoints(T_ee_actions)
+        current_frames = torch.eye(4, dtype=T_ee_actions.dtype, device=T_ee_actions.device).expand(batch, 4, 4)
+        action_frames = T_ee_actions.reshape(-1, 4, 4)
+        frequencies = self.config.num_frequencies
+        edge_attr = {
+            CURRENT_TO_ACTION: transform_attr(
+                current_frames, action_frames, graph[CURRENT_TO_ACTION], keypoints, frequencies
+            ),
+            ACTION_TO_ACTION: transform_attr(action_frames, action_frames, graph[ACTION_TO_ACTION], keypoints, frequencies),
+        }
+        x = {
+            CURRENT: context.current_gripper_features.reshape(-1, gripper_features.shape[-1]),
+            ACTION: gripper_features.reshape(-1, gripper_features.shape[-1]),
+        }
+        actions = self.action_network(x, graph.edge_index_dict, edge_attr)[ACTION]
+        out = torch.cat([self.translation_head(actions), self.rotation_head(actions), self.gripper_head(actions)], -1)
+        return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1)
+
+    def training_loss(
+        self,
+        context: InstantPolicyContext,
+        T_ee_actions: torch.Tensor,
+        action_gripper: torch.Tensor,
+        generator: torch.Generator | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """Noise the actions at random timesteps and regress the flows and gripper at the action gripper nodes.
+
+        Args:
+            T_ee_actions: ``(B, T, 4, 4)`` clean action poses in the current EE frame (clamped to the bounds).
+            action_gripper: ``(B, T)`` gripper commands, 1 open, 0 closed.
+
+        Returns:
+            ``loss`` (the sum) and its parts ``translation``, ``rotation``, ``gripper`` (each a mean squared error).
+        """
+        batch, horizon = context.batch_size, self.config.prediction_horizon
+        self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
+        self._check_tensor("action_gripper", action_gripper, (batch, horizon))
+        device = T_ee_actions.device
+        noise_device = generator.device if generator is not None else device
+        clean = self.diffusion.normalize(T_ee_actions, action_gripper)
+        timesteps = torch.randint(
+            0, self.config.num_train_timesteps, (batch,), generator=generator, device=noise_device
+        ).to(device)
+        noise = torch.randn(clean.shape, generator=generator, device=noise_device, dtype=clean.dtype).to(device)
+        T_noisy, gripper_noisy = self.diffusion.unnormalize(self.diffusion.add_noise(clean, noise, timesteps))
+        T_clean, _ = self.diffusion.unnormalize(clean)
+        flow_target = self.diffusion.flow_targets(T_clean, T_noisy)
+        prediction = self.denoise(context, T_noisy, gripper_noisy, timesteps)
+        translation = nn.functional.mse_loss(prediction[..., :3], flow_target[..., :3])
+        rotation = nn.functional.mse_loss(prediction[..., 3:6], flow_target[..., 3:6])
+        gripper = nn.functional.mse_loss(prediction[..., 6], clean[..., 6:7].expand_as(prediction[..., 6]))
+        return {"loss": translation + rotation + gripper, "translation": translation, "rotation": rotation,
+                "gripper": gripper}
+
+    @torch.no_grad()
+    def sample_actions(
+        self,
+        context: InstantPolicyContext,
+        generator: torch.Generator | None = None,
+        num_inference_steps: int | None = None,
+        trajectory: list | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """DDIM-sample the actions.
+
+        Returns:
+            ``T_ee_actions (B, T, 4, 4)``: action poses in the current EE frame; ``gripper_open (B, T)`` in {0, 1}.
+        """
+        steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
+        sample = self.diffusion.sample(
+            lambda T_noisy, gripper, timesteps: self.denoise(context, T_noisy, gripper, timesteps),
+            context.batch_size,
+            steps,
+            generator=generator,
+            device=context.points_ee.device,
+            dtype=context.points_ee.dtype,
+            trajectory=trajectory,
+        )
+        T_ee_actions, gripper = self.diffusion.unnormalize(sample)
+        return T_ee_actions, (gripper > 0).to(sample.dtype)

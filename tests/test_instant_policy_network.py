@@ -1,0 +1,333 @@
+"""Instant Policy network: presets, the five defects of the authors' code, SE(3) invariance, context reuse,
+variable context size, learning, and input errors."""
+
+import json
+from pathlib import Path
+
+import pytest
+import roma
+import torch
+from safetensors.torch import load_file, save_file
+
+import lerobot_instant_policy.model as model_package
+from lerobot_instant_policy.model.action_diffusion import points_in_action_frames
+from lerobot_instant_policy.model.geometry_encoder import GeometryEncoderConfig
+from lerobot_instant_policy.model.instant_policy_network import (
+    InstantPolicyNetwork,
+    InstantPolicyNetworkConfig,
+    network_preset,
+)
+
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
+
+
+TINY_ENCODER = GeometryEncoderConfig(num_centroids=(32, 8), layer_widths=((16, 32), (32, 48)), num_frequencies=6)
+POINTS = 128
+
+
+def _tiny_config(**overrides) -> InstantPolicyNetworkConfig:
+    values = dict(hidden_dim=32, num_heads=4, encoder=TINY_ENCODER, num_points=POINTS, max_num_demos=5,
+                  max_demo_length=12)
+    return InstantPolicyNetworkConfig(**{**values, **overrides})
+
+
+def _network(seed: int = 0, **overrides) -> InstantPolicyNetwork:
+    torch.manual_seed(seed)
+    return InstantPolicyNetwork(_tiny_config(**overrides)).eval()
+
+
+def _poses(shape: tuple, generator: torch.Generator, dtype, translation: float = 0.3, angle: float = 3.0):
+    T = torch.zeros(*shape, 4, 4, dtype=dtype)
+    T[..., :3, :3] = roma.rotvec_to_rotmat(torch.randn(*shape, 3, generator=generator, dtype=dtype) * angle / 3)
+    T[..., :3, 3] = torch.randn(*shape, 3, generator=generator, dtype=dtype) * translation
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def _batch(batch=2, num_demos=2, length=3, seed=0, dtype=torch.float32, points=POINTS, horizon=8) -> dict:
+    """Synthetic scenes: random object-like blobs in world frames, EE poses near them, small relative actions."""
+    g = torch.Generator().manual_seed(seed)
+
+    def blob(*shape):
+        return torch.randn(*shape, points, 3, generator=g, dtype=dtype) * 0.05
+
+    return dict(
+        demo_points_world=blob(batch, num_demos, length) + torch.tensor([0.5, 0.0, 0.1], dtype=dtype),
+        demo_T_world_ee=_poses((batch, num_demos, length), g, dtype),
+        demo_gripper=torch.randint(0, 2, (batch, num_demos, length), generator=g).to(dtype),
+        points_world=blob(batch) + torch.tensor([0.5, 0.0, 0.1], dtype=dtype),
+        T_world_ee=_poses((batch,), g, dtype),
+        gripper=torch.randint(0, 2, (batch,), generator=g).to(dtype),
+        T_ee_actions=_poses((batch, horizon), g, dtype, translation=0.01, angle=0.03),
+        action_gripper=torch.randint(0, 2, (batch, horizon), generator=g).to(dtype),
+    )
+
+
+def _context(network, batch):
+    keys = ("demo_points_world", "demo_T_world_ee", "demo_gripper", "points_world", "T_world_ee", "gripper")
+    return network.encode_context(**{key: batch[key] for key in keys})
+
+
+# ---------------------------------------------------------------- presets and sizes
+def test_presets_have_the_documented_sizes():
+    paper = network_preset("paper")
+    assert (paper.hidden_dim, paper.num_heads, paper.hidden_dim // paper.num_heads) == (1024, 16, 64)
+    assert paper.encoder.feature_dim == 512 and paper.encoder.num_nodes == 16
+    network = InstantPolicyNetwork(paper)
+    trainable = sum(p.numel() for p in network.parameters() if p.requires_grad)
+    assert 90e6 < trainable < 150e6, trainable  # the paper's ≈118M
+    assert all(not p.requires_grad for p in network.geometry_encoder.parameters())
+    small = InstantPolicyNetwork(network_preset("small"))
+    assert sum(p.numel() for p in small.parameters() if p.requires_grad) < 5e6
+    with pytest.raises(ValueError, match="unknown network preset"):
+        network_preset("huge")
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="divisible"):
+        _tiny_config(hidden_dim=30)
+    with pytest.raises(ValueError, match="num_inference_steps"):
+        _tiny_config(num_inference_steps=0)
+    with pytest.raises(ValueError, match="num_points"):
+        _tiny_config(num_points=16)
+
+
+# ---------------------------------------------------------------- the authors' five defects
+def test_defect_1_timestep_changes_the_network_output():
+    network = _network()
+    batch = _batch()
+    context = _context(network, batch)
+    gripper = 2 * batch["action_gripper"] - 1
+    early = network.denoise(context, batch["T_ee_actions"], gripper, torch.tensor([5, 5]))
+    late = network.denoise(context, batch["T_ee_actions"], gripper, torch.tensor([90, 90]))
+    assert (early - late).abs().max() > 1e-3
+
+
+def test_defect_2_ddim_renoises_between_steps():
+    network = _network()
+    context = _context(network, _batch())
+    trajectory = []
+    network.sample_actions(context, torch.Generator().manual_seed(0), num_inference_steps=4, trajectory=trajectory)
+    assert [step.timestep for step in trajectory] == [99, 74, 49, 24]
+    alphas = network.diffusion.inference_scheduler.alphas_cumprod
+    for step, following in zip(trajectory, trajectory[1:]):
+        # The intermediate sample is not the clean prediction: it carries the re-applied noise of the next level.
+        assert (step.next_sample - step.predicted_clean).abs().max() > 1e-2
+        a_t, a_prev = alphas[step.timestep], alphas[following.timestep]
+        noise = (step.sample - a_t.sqrt() * step.predicted_clean) / (1 - a_t).sqrt()
+        expected = (a_prev.sqrt() * step.predicted_clean + (1 - a_prev).sqrt() * noise).clamp(-1, 1)
+        torch.testing.assert_close(step.next_sample, expected)
+        assert torch.equal(following.sample, step.next_sample)
+    torch.testing.assert_close(trajectory[-1].next_sample, trajectory[-1].predicted_clean)
+
+
+def test_defect_3_action_frame_transform_is_R_transpose_of_p_minus_t():
+    g = torch.Generator().manual_seed(0)
+    points = torch.randn(1, 5, 3, generator=g, dtype=torch.float64)
+    T = _poses((1, 2), g, torch.float64)
+    R, t = T[0, 1, :3, :3], T[0, 1, :3, 3]
+    result = points_in_action_frames(points, T)
+    torch.testing.assert_close(result[0, 1], (points[0] - t) @ R)  # Rᵀ (p − t), row-vector form
+    wrong = points[0] @ R - t  # the authors' Rᵀ p − t
+    assert (result[0, 1] - wrong).abs().max() > 1e-2
+    # Mapping back with T_EA recovers the points: p_E = R p_A + t.
+    torch.testing.assert_close(result[0, 1] @ R.T + t, points[0])
+
+
+def test_defect_4_action_step_0_and_current_gripper_nodes_have_distinct_embeddings():
+    network = _network()
+    for open_state in (0.0, 1.0):
+        current = network.observation_gripper_features(torch.tensor([open_state]))  # (1, K, H)
+        action = network.action_gripper_features(torch.tensor([[2 * open_state - 1] * 8]), torch.tensor([0]))
+        assert (current[0] - action[0, 0]).abs().max() > 1e-3
+    observation = network.observation_keypoint_embedding.weight
+    action = network.action_keypoint_embedding.weight
+    assert observation.data_ptr() != action.data_ptr()
+    # Training the action embedding of step 0 leaves the current-frame embedding alone.
+    before = observation.detach().clone()
+    network.action_gripper_features(torch.zeros(1, 8), torch.tensor([3])).sum().backward()
+    assert observation.grad is None and action.grad[: len(network.config.gripper_keypoints)].abs().sum() > 0
+    torch.testing.assert_close(observation, before)
+
+
+def test_defect_5_no_pickle_configs_are_json_and_weights_safetensors(tmp_path):
+    config = _tiny_config(reencode_action_clouds=False)
+    restored = InstantPolicyNetworkConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert restored == config
+    with pytest.raises(ValueError, match="unknown"):
+        InstantPolicyNetworkConfig.from_dict({**config.to_dict(), "pickled": True})
+    network = _network()
+    save_file(network.state_dict(), tmp_path / "model.safetensors")
+    other = _network(seed=1)
+    other.load_state_dict(load_file(tmp_path / "model.safetensors"), strict=True)
+    batch = _batch()
+    gripper = 2 * batch["action_gripper"] - 1
+    timesteps = torch.tensor([10, 60])
+    torch.testing.assert_close(
+        other.denoise(_context(other, batch), batch["T_ee_actions"], gripper, timesteps),
+        network.denoise(_context(network, batch), batch["T_ee_actions"], gripper, timesteps),
+    )
+    for source in Path(model_package.__file__).parent.glob("*.py"):
+        text = source.read_text()
+        assert "pickle" not in text and "torch.save" not in text and "torch.load" not in text, source
+
+
+# ---------------------------------------------------------------- diffusion pieces
+def test_exact_flows_recover_the_clean_actions_by_svd():
+    network = _network()
+    batch = _batch(dtype=torch.float64)
+    diffusion = network.diffusion
+    clean = diffusion.normalize(batch["T_ee_actions"], batch["action_gripper"])
+    T_clean, gripper = diffusion.unnormalize(clean)
+    torch.testing.assert_close(diffusion.normalize(T_clean, (gripper > 0).double()), clean)
+    noisy = diffusion.add_noise(clean, torch.randn_like(clean), torch.tensor([50, 99]))
+    T_noisy, _ = diffusion.unnormalize(noisy)
+    flows = diffusion.flow_targets(T_clean, T_noisy)
+    assert flows.abs().max() <= 1.0 + 1e-9
+    torch.testing.assert_close(diffusion.predicted_clean_actions(T_noisy, flows), T_clean)
+
+
+def test_actions_beyond_the_bounds_are_clamped():
+    network = _network()
+    T = torch.eye(4).repeat(1, 8, 1, 1)
+    T[0, :, 0, 3] = 0.5  # 50 cm, far beyond j cm
+    sample = network.diffusion.normalize(T, torch.ones(1, 8))
+    assert torch.equal(sample[0, :, 0], torch.ones(8))
+    T_back, _ = network.diffusion.unnormalize(sample)
+    torch.testing.assert_close(T_back[0, :, 0, 3], 0.01 * torch.arange(1, 9, dtype=torch.float32))
+
+
+# ---------------------------------------------------------------- invariance, context reuse, context size
+@pytest.mark.parametrize("reencode", [True, False])
+def test_moving_the_whole_world_leaves_the_relative_actions_unchanged(reencode):
+    network = _network(reencode_action_clouds=reencode).double()
+    batch = _batch(dtype=torch.float64, seed=3)
+    moved = dict(batch)
+    world = _poses((), torch.Generator().manual_seed(7), torch.float64, translation=1.0, angle=3.0)
+    moved["demo_points_world"] = batch["demo_points_world"] @ world[:3, :3].T + world[:3, 3]
+    moved["points_world"] = batch["points_world"] @ world[:3, :3].T + world[:3, 3]
+    moved["demo_T_world_ee"] = world @ batch["demo_T_world_ee"]
+    moved["T_world_ee"] = world @ batch["T_world_ee"]
+    actions, gripper = network.sample_actions(_context(network, batch), torch.Generator().manual_seed(1))
+    moved_actions, moved_gripper = network.sample_actions(_context(network, moved), torch.Generator().manual_seed(1))
+    torch.testing.assert_close(moved_actions, actions, atol=1e-8, rtol=1e-8)
+    assert torch.equal(moved_gripper, gripper)
+    # The prediction does depend on the scene: moving only the live cloud changes it.
+    shifted = dict(batch, points_world=batch["points_world"] + torch.tensor([0.05, 0.0, 0.0], dtype=torch.float64))
+    shifted_actions, _ = network.sample_actions(_context(network, shifted), torch.Generator().manual_seed(1))
+    assert (shifted_actions - actions).abs().max() > 1e-6
+
+
+def _count_calls(module: torch.nn.Module) -> list:
+    calls = []
+    module.register_forward_hook(lambda *_: calls.append(1))
+    return calls
+
+
+@pytest.mark.parametrize("reencode", [True, False])
+def test_context_is_computed_once_and_reused_by_every_denoising_step(reencode):
+    network = _network(reencode_action_clouds=reencode)
+    context = _context(network, _batch())
+    context_calls = _count_calls(network.context_network)
+    local_calls = _count_calls(network.local_network)
+    encoder_calls = _count_calls(network.geometry_encoder)
+    actions, gripper = network.sample_actions(context, torch.Generator().manual_seed(0), num_inference_steps=4)
+    assert actions.shape == (2, 8, 4, 4) and gripper.shape == (2, 8)
+    assert set(gripper.unique().tolist()) <= {0.0, 1.0}
+    assert len(context_calls) == 0  # φ is not re-run
+    assert len(local_calls) == 4  # σ only on the action local graphs, once per step
+    assert len(encoder_calls) == (4 if reencode else 0)
+    rotations = actions[..., :3, :3]
+    torch.testing.assert_close(rotations @ rotations.transpose(-1, -2), torch.eye(3).expand_as(rotations))
+
+
+@pytest.mark.parametrize("num_demos, length", [(1, 1), (1, 5), (3, 2), (5, 12)])
+def test_variable_number_and_length_of_demonstrations(num_demos, length):
+    network = _network()
+    context = _context(network, _batch(batch=1, num_demos=num_demos, length=length))
+    actions, gripper = network.sample_actions(context, torch.Generator().manual_seed(0), num_inference_steps=2)
+    assert actions.shape == (1, 8, 4, 4) and torch.isfinite(actions).all() and gripper.shape == (1, 8)
+    translation_bounds = 0.01 * torch.arange(1, 9) + 1e-6
+    assert (actions[0, :, :3, 3].abs() <= translation_bounds[:, None]).all()
+
+
+def test_cached_demo_geometry_gives_the_same_context():
+    network = _network()
+    batch = _batch()
+    geometry = network.encode_demo_geometry(batch["demo_points_world"], batch["demo_T_world_ee"])
+    cached = network.encode_context(
+        None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
+        batch["gripper"], demo_geometry=geometry,
+    )
+    torch.testing.assert_close(cached.current_gripper_features, _context(network, batch).current_gripper_features)
+
+
+# ---------------------------------------------------------------- learning
+def test_loss_falls_when_overfitting_a_tiny_batch():
+    torch.manual_seed(0)
+    network = InstantPolicyNetwork(network_preset("small", num_points=256, reencode_action_clouds=False)).train()
+    batch = _batch(batch=2, num_demos=1, length=3, points=256, seed=5)
+    geometry = network.encode_demo_geometry(batch["demo_points_world"], batch["demo_T_world_ee"])
+    optimizer = torch.optim.AdamW([p for p in network.parameters() if p.requires_grad], lr=1e-3)
+    generator = torch.Generator().manual_seed(0)
+    losses = []
+    for _ in range(100):
+        context = network.encode_context(
+            None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
+            batch["gripper"], demo_geometry=geometry,
+        )
+        parts = network.training_loss(context, batch["T_ee_actions"], batch["action_gripper"], generator)
+        optimizer.zero_grad()
+        parts["loss"].backward()
+        optimizer.step()
+        losses.append(parts["loss"].item())
+        assert set(parts) == {"loss", "translation", "rotation", "gripper"}
+    first, last = sum(losses[:10]) / 10, sum(losses[-10:]) / 10
+    assert last < 0.3 * first, (first, last)
+    assert all(p.grad is None for p in network.geometry_encoder.parameters())
+    assert not network.geometry_encoder.training
+
+
+# ---------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "key, change, message",
+    [
+        ("demo_points_world", lambda x: x.index_put_((torch.tensor(0),), torch.tensor(float("nan"))), "NaN"),
+        ("points_world", lambda x: x.index_put_((torch.tensor(0),), torch.tensor(float("nan"))), "NaN"),
+        ("T_world_ee", lambda x: x.index_put_((torch.tensor(0),), torch.tensor(float("nan"))), "NaN"),
+        ("demo_T_world_ee", lambda x: x.index_put_((torch.tensor(1),), torch.tensor(float("inf"))), "NaN"),
+        ("points_world", lambda x: x[:, :100], "num_points=128"),
+        ("demo_points_world", lambda x: x[..., :100, :], "num_points=128"),
+        ("gripper", lambda x: x[:1], "gripper must have shape"),
+    ],
+)
+def test_bad_inputs_raise_clear_errors(key, change, message):
+    network = _network()
+    batch = _batch()
+    batch[key] = change(batch[key].clone())
+    with pytest.raises(ValueError, match=message):
+        _context(network, batch)
+
+
+@pytest.mark.parametrize("num_demos, length, message", [(6, 3, "N=6"), (2, 13, "L=13"), (0, 3, "N=0")])
+def test_context_size_outside_the_supported_range_is_refused(num_demos, length, message):
+    network = _network()
+    batch = _batch(num_demos=max(num_demos, 1), length=length)
+    if num_demos == 0:
+        batch = {k: v[:, :0] if k.startswith("demo_") else v for k, v in batch.items()}
+    with pytest.raises(ValueError, match=message):
+        _context(network, batch)
+
+
+def test_bad_action_inputs_and_step_counts_raise():
+    network = _network()
+    batch = _batch()
+    context = _context(network, batch)
+    nan_actions = batch["T_ee_actions"].clone()
+    nan_actions[0, 0, 0, 3] = float("nan")
+    with pytest.raises(ValueError, match="T_ee_actions contains NaN"):
+        network.training_loss(context, nan_actions, batch["action_gripper"])
+    with pytest.raises(ValueError, match="T_ee_actions must have shape"):
+        network.training_loss(context, batch["T_ee_actions"][:, :4], batch["action_gripper"])
+    with pytest.raises(ValueError, match="num_inference_steps"):
+        network.sample_actions(context, num_inference_steps=0)
