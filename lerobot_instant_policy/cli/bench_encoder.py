@@ -8,11 +8,14 @@ import time
 import torch
 
 from ..model.geometry_encoder import ENCODER_PRESETS, GeometryEncoder
+from ..model.point_ops import _farthest_point_sampling_torch, farthest_point_sampling
 
 
 @torch.no_grad()
 def bench_encoder(batch_sizes: tuple[int, ...] = (1, 16), repeats: int = 5, num_points: int = 2048) -> dict:
-    """Median clouds/s of the deterministic encoder forward pass per preset and batch size (random weights)."""
+    """Median clouds/s of the deterministic encoder forward pass per preset and batch size (random weights), and
+    the first layer's farthest-point sampling (256 of ``num_points``) with the CPU ``fpsample`` path and with the
+    torch loop, timed in the same run."""
     torch.manual_seed(0)
     result: dict = {"num_points": num_points, "torch_threads": torch.get_num_threads(), "repeats": repeats}
     for preset, config in ENCODER_PRESETS.items():
@@ -28,4 +31,22 @@ def bench_encoder(batch_sizes: tuple[int, ...] = (1, 16), repeats: int = 5, num_
             median = statistics.median(seconds)
             result[f"{preset}_batch{batch}_clouds_per_s"] = round(batch / median, 1)
             result[f"{preset}_batch{batch}_ms_per_call"] = round(1000 * median, 2)
+    for batch in batch_sizes:
+        clouds = torch.randn(batch, num_points, 3) * 0.08
+        start = (clouds - clouds.mean(dim=1, keepdim=True)).square().sum(-1).argmax(dim=1)
+        fast = _median_seconds(lambda: farthest_point_sampling(clouds, 256), repeats)
+        loop = _median_seconds(lambda: _farthest_point_sampling_torch(clouds, 256, start), repeats)
+        result[f"fps256_batch{batch}_ms"] = round(1000 * fast, 2)
+        result[f"fps256_batch{batch}_torch_loop_ms"] = round(1000 * loop, 2)
+        result[f"fps256_batch{batch}_speedup"] = round(loop / fast, 2)
     return result
+
+
+def _median_seconds(call, repeats: int) -> float:
+    call()
+    seconds = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        call()
+        seconds.append(time.perf_counter() - started)
+    return statistics.median(seconds)
