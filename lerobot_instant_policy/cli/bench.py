@@ -4,6 +4,9 @@
 ``--workers`` processes at once (medians over ``--repeats`` runs), and demonstrations per second.
 ``lerobot-ip-bench encoder``: geometry-encoder clouds per second at 2048 points, batch 1 and 16, both presets.
 ``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
+``lerobot-ip-bench inference --preset small|paper``: ``instant_policy`` milliseconds per control step (K=4, N=2,
+L=10, T=8, 2048 points, batch 1, demo context cached). ``lerobot-ip-bench train-step --preset small|paper``:
+training samples per second and peak RSS.
 """
 
 from __future__ import annotations
@@ -82,8 +85,29 @@ def main(argv: list[str] | None = None) -> int:
     env.add_argument("--steps", type=int, default=60)
     env.add_argument("--repeats", type=int, default=3)
     env.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    inference = commands.add_parser("inference", help="instant_policy milliseconds per control step")
+    inference.add_argument("--preset", choices=["small", "paper"], default="small")
+    inference.add_argument("--repeats", type=int, default=5)
+    inference.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    train_step = commands.add_parser("train-step", help="instant_policy training samples per second, peak memory")
+    train_step.add_argument("--preset", choices=["small", "paper"], default="small")
+    train_step.add_argument("--batch-size", type=int, default=8)
+    train_step.add_argument("--repeats", type=int, default=5)
+    train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
-    if args.command == "env":
+    if args.command == "inference":
+        if args.repeats <= 0:
+            parser.error("--repeats must be positive")
+        from .bench_policy import bench_inference
+
+        result = bench_inference(args.preset, repeats=args.repeats)
+    elif args.command == "train-step":
+        if min(args.repeats, args.batch_size) <= 0:
+            parser.error("--repeats and --batch-size must be positive")
+        from .bench_policy import bench_train_step
+
+        result = bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats)
+    elif args.command == "env":
         if min(args.steps, args.repeats) <= 0:
             parser.error("--steps and --repeats must be positive")
         from .bench_env import bench_env

@@ -61,7 +61,8 @@ from .graph_transformer import HeteroGraphTransformer
 class InstantPolicyNetworkConfig:
     """Sizes of the network and of its diffusion; JSON-serialisable with :meth:`to_dict` / :meth:`from_dict`.
 
-    ``hidden_dim``, ``num_heads``, ``num_layers`` and ``mlp_ratio`` apply to each of σ, φ and ψ.
+    ``hidden_dim``, ``num_heads``, ``num_layers`` and ``mlp_ratio`` apply to each of σ, φ and ψ; ``local_layers``
+    (σ), ``context_layers`` (φ) and ``action_layers`` (ψ) override ``num_layers`` per stage (``None``: ``num_layers``).
     ``reencode_action_clouds``: True re-encodes the live cloud in every action frame at every denoising step (the
     paper's choice); False moves the current scene nodes rigidly into the action frames (no encoder in the loop).
     """
@@ -69,6 +70,9 @@ class InstantPolicyNetworkConfig:
     hidden_dim: int = 128
     num_heads: int = 4
     num_layers: int = 2
+    local_layers: int | None = None
+    context_layers: int | None = None
+    action_layers: int | None = None
     mlp_ratio: int = 4
     encoder: GeometryEncoderConfig = field(default_factory=lambda: encoder_preset("small"))
     num_points: int = 2048
@@ -87,8 +91,12 @@ class InstantPolicyNetworkConfig:
         if isinstance(self.encoder, dict):
             object.__setattr__(self, "encoder", GeometryEncoderConfig.from_dict(self.encoder))
         object.__setattr__(self, "gripper_keypoints", tuple(tuple(float(c) for c in k) for k in self.gripper_keypoints))
-        positive = ("hidden_dim", "num_heads", "num_layers", "mlp_ratio", "prediction_horizon", "num_train_timesteps",
-                    "num_frequencies", "max_num_demos", "max_demo_length")
+        for name in ("local_layers", "context_layers", "action_layers"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, self.num_layers)
+        positive = ("hidden_dim", "num_heads", "num_layers", "local_layers", "context_layers", "action_layers",
+                    "mlp_ratio", "prediction_horizon", "num_train_timesteps", "num_frequencies", "max_num_demos",
+                    "max_demo_length")
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -181,11 +189,16 @@ class InstantPolicyNetwork(nn.Module):
         self.timestep_embedding = nn.Sequential(
             nn.Linear(encoding_dim(1, config.num_frequencies), hidden), nn.GELU(), nn.Linear(hidden, hidden)
         )
-        stage = dict(num_layers=config.num_layers, hidden_dim=hidden, num_heads=config.num_heads,
-                     mlp_ratio=config.mlp_ratio)
-        self.local_network = HeteroGraphTransformer(local_edge_dims(config.num_frequencies), [GRIPPER], **stage)
-        self.context_network = HeteroGraphTransformer(context_edge_dims(config.num_frequencies), [CURRENT], **stage)
-        self.action_network = HeteroGraphTransformer(action_edge_dims(config.num_frequencies), [ACTION], **stage)
+        stage = dict(hidden_dim=hidden, num_heads=config.num_heads, mlp_ratio=config.mlp_ratio)
+        self.local_network = HeteroGraphTransformer(
+            local_edge_dims(config.num_frequencies), [GRIPPER], num_layers=config.local_layers, **stage
+        )
+        self.context_network = HeteroGraphTransformer(
+            context_edge_dims(config.num_frequencies), [CURRENT], num_layers=config.context_layers, **stage
+        )
+        self.action_network = HeteroGraphTransformer(
+            action_edge_dims(config.num_frequencies), [ACTION], num_layers=config.action_layers, **stage
+        )
         self.translation_head = _head(hidden, 3)
         self.rotation_head = _head(hidden, 3)
         self.gripper_head = _head(hidden, 1)

@@ -1,0 +1,127 @@
+"""Speed of ``InstantPolicyPolicy``: milliseconds per control step and training samples per second.
+
+Inputs are synthetic (random clouds of 2048 points, random EE poses): speed does not depend on what the points
+show. The geometry encoder is randomly initialised when the preset has no shipped weights (``paper``), which
+changes no timing.
+"""
+
+from __future__ import annotations
+
+import resource
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from ..configuration_instant_policy import InstantPolicyConfig
+from ..data.context_bank import ContextBank, EpisodeWaypoints
+from ..data.demonstrations import Demonstration
+from ..data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+
+
+def _config(preset: str, **overrides) -> InstantPolicyConfig:
+    config = InstantPolicyConfig(preset=preset, device="cuda" if torch.cuda.is_available() else "cpu", **overrides)
+    if config.pretrained_encoder and not config.encoder_weights_path().is_file():
+        config = InstantPolicyConfig(preset=preset, device=config.device, pretrained_encoder=False, **overrides)
+    return config
+
+
+def _pose_rows(rng: np.random.Generator, count: int) -> np.ndarray:
+    """``(count, 8)`` random EE poses near the table (xyz, unit quaternion xyzw with w ≥ 0, gripper)."""
+    quats = rng.normal(size=(count, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    quats[quats[:, 3] < 0] *= -1
+    positions = rng.uniform([0.3, -0.2, 0.05], [0.6, 0.2, 0.3], size=(count, 3))
+    return np.concatenate([positions, quats, rng.integers(0, 2, (count, 1))], axis=1).astype(np.float32)
+
+
+def _demo(rng: np.random.Generator, frames: int, points: int, task: str) -> Demonstration:
+    cloud = rng.uniform(-0.1, 0.1, size=(points, 3)).astype(np.float32) + np.array([0.5, 0.0, 0.05], np.float32)
+    state = _pose_rows(rng, frames)
+    return Demonstration(np.repeat(cloud[None], frames, axis=0), state, state.copy(), task)
+
+
+def bench_inference(preset: str = "small", num_demos: int = 2, num_waypoints: int = 10, repeats: int = 5) -> dict:
+    """Median milliseconds of one ``predict_action_chunk`` (K=4, T=8, batch 1, demo context cached)."""
+    from ..modeling_instant_policy import InstantPolicyPolicy
+
+    config = _config(preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4)
+    policy = InstantPolicyPolicy(config).to(config.device).eval()
+    rng = np.random.default_rng(0)
+    policy.set_demonstrations([_demo(rng, 2 * num_waypoints, config.num_points, "bench") for _ in range(num_demos)])
+    live = _demo(rng, 1, config.num_points, "bench")
+    batch = {
+        POINTCLOUD_KEY: torch.from_numpy(live.points_world).to(config.device),
+        STATE_KEY: torch.from_numpy(live.state).to(config.device),
+        "task": ["bench"],
+    }
+    policy.predict_action_chunk(batch)  # warm-up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        policy.predict_action_chunk(batch)
+        if config.device == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - start)
+    return {
+        "benchmark": "inference", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
+        "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
+        "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
+        "points": config.num_points, "batch": 1,
+        "parameters": sum(parameter.numel() for parameter in policy.parameters()),
+        "ms_per_control_step": round(1000 * statistics.median(times), 1),
+        "runs_ms": [round(1000 * value, 1) for value in times],
+    }
+
+
+def bench_train_step(preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5) -> dict:
+    """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed, encoder cache warm),
+    and the process's peak resident memory."""
+    from ..modeling_instant_policy import InstantPolicyPolicy
+
+    config = _config(preset, min_demos=num_demos, max_demos=num_demos)
+    policy = InstantPolicyPolicy(config).to(config.device).train()
+    rng = np.random.default_rng(0)
+    L, P, T = config.num_waypoints, config.num_points, config.horizon
+    episodes = 8
+    bank = ContextBank([
+        EpisodeWaypoints(index, "bench", np.arange(L), rng.uniform(-0.1, 0.1, (L, P, 3)).astype(np.float32),
+                         np.tile(np.eye(4, dtype=np.float32), (L, 1, 1)), np.ones(L, np.float32))
+        for index in range(episodes)
+    ])
+    policy.set_training_bank(bank)
+    state = _pose_rows(rng, batch_size)
+    actions = np.repeat(state[:, None], T, axis=1)
+    actions[..., :3] += rng.normal(0.0, 0.005, size=(batch_size, T, 3)).astype(np.float32)
+    batch = {
+        POINTCLOUD_KEY: torch.from_numpy(rng.uniform(-0.1, 0.1, (batch_size, P, 3)).astype(np.float32)),
+        STATE_KEY: torch.from_numpy(state),
+        ACTION_KEY: torch.from_numpy(actions),
+        "episode_index": torch.from_numpy(rng.integers(0, episodes, batch_size)),
+    }
+    batch = {key: value.to(config.device) for key, value in batch.items()}
+    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=config.optimizer_lr)
+
+    def step() -> None:
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        if config.device == "cuda":
+            torch.cuda.synchronize()
+
+    step()  # warm-up (fills the encoder cache of the bank)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        step()
+        times.append(time.perf_counter() - start)
+    return {
+        "benchmark": "train-step", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
+        "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
+        "batch": batch_size, "N": num_demos, "L": L, "T": T, "points": P,
+        "samples_per_s": round(batch_size / statistics.median(times), 2),
+        "runs_s_per_step": [round(value, 3) for value in times],
+        "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    }

@@ -1,0 +1,416 @@
+"""``InstantPolicyPolicy``: the Instant Policy network as a LeRobot policy (``--policy.type=instant_policy``).
+
+Training (``lerobot-train``): every batch row is a frame of an episode with ``observation.pointcloud (P, 3)`` and
+``observation.state (8,)`` (world frame), the ``horizon`` actions ``action (T, 8)`` that follow it and its
+``episode_index``. The policy draws one N in ``min_demos … max_demos`` per batch (so every row has the same graph)
+and, per row, N other episodes of the row's task from a :class:`ContextBank` it builds on the first ``forward`` from
+the training dataset's ``dataset_meta``. The bank and the cached frozen-encoder outputs of its waypoints are plain
+attributes, never part of ``model.safetensors``.
+
+Evaluation (``lerobot-eval``) and deployment: the demonstrations of each batch row's ``task`` come from the
+dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :meth:`set_demonstrations`. Their
+waypoints are encoded once per task and reused at every control step.
+
+Actions: the network predicts ``T_EA``, the action poses in the current EE frame; the policy returns them as
+absolute world-frame EE targets ``(B, T, 8)`` in the layout of DESIGN §4 (xyz, quaternion xyzw with ``w ≥ 0``,
+gripper 1 open / 0 closed).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from contextvars import ContextVar
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import roma
+import torch
+from lerobot.policies.pretrained import PreTrainedPolicy
+from torch import Tensor
+
+from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
+from .data.context_bank import ContextBank
+from .data.demonstrations import Demonstration, DemonstrationError, load_demonstrations, open_demo_dataset
+from .data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from .model.action_diffusion import invert_rigid, make_rigid
+from .model.geometry_encoder import encoder_preset
+from .model.instant_policy_network import InstantPolicyNetwork, InstantPolicyNetworkConfig
+from .model.occupancy import load_geometry_encoder
+
+logger = logging.getLogger(__name__)
+
+# True while ``from_pretrained`` builds a policy: its encoder then comes from the checkpoint, not the weights file.
+_LOADING_CHECKPOINT: ContextVar[bool] = ContextVar("instant_policy_loading_checkpoint", default=False)
+
+# Episodes per frozen-encoder call when the training bank fills its cache (L clouds each).
+_ENCODE_CHUNK_EPISODES = 4
+
+
+class CheckpointMismatchError(ValueError):
+    """A checkpoint's tensors do not match the network its ``config.json`` describes."""
+
+
+@dataclass
+class DemoContext:
+    """The demonstrations of one task, ready for the network (a leading batch axis of 1, expanded per batch):
+    ``T_world_ee (1, N, L, 4, 4)``, ``gripper_open (1, N, L)`` and the frozen encoder's scene nodes of every waypoint
+    in its EE frame, ``scene_positions (1, N, L, M, 3)`` and ``scene_features (1, N, L, M, D)``, on the policy's
+    device."""
+
+    T_world_ee: Tensor
+    gripper_open: Tensor
+    scene_positions: Tensor
+    scene_features: Tensor
+
+    @property
+    def num_demos(self) -> int:
+        return self.T_world_ee.shape[1]
+
+    @property
+    def num_waypoints(self) -> int:
+        return self.T_world_ee.shape[2]
+
+
+def network_config(config: InstantPolicyConfig) -> InstantPolicyNetworkConfig:
+    """The network that ``config`` describes (field names differ: ``horizon`` → ``prediction_horizon``, …)."""
+    return InstantPolicyNetworkConfig(
+        hidden_dim=config.hidden_dim,
+        num_heads=config.num_heads,
+        num_layers=config.local_layers,
+        local_layers=config.local_layers,
+        context_layers=config.context_layers,
+        action_layers=config.action_layers,
+        encoder=encoder_preset(config.encoder_preset),
+        num_points=config.num_points,
+        prediction_horizon=config.horizon,
+        num_train_timesteps=config.diffusion_train_steps,
+        num_inference_steps=config.inference_steps,
+        gripper_keypoints=tuple(tuple(point) for point in config.gripper_keypoints),
+        reencode_action_clouds=config.reencode_action_clouds,
+        max_num_demos=SUPPORTED_DEMOS[1],
+        max_demo_length=SUPPORTED_WAYPOINTS[1],
+    )
+
+
+def poses_from_vectors(poses: Tensor) -> Tensor:
+    """``(..., ≥7)`` rows (xyz, quaternion xyzw, …) → ``T_world_ee (..., 4, 4)``; the quaternion is normalised."""
+    quaternion = poses[..., 3:7]
+    norm = quaternion.norm(dim=-1, keepdim=True)
+    if bool((norm < 1e-6).any()):
+        raise ValueError("an EE pose has a zero quaternion (entries 3…6, xyzw); poses must hold unit quaternions")
+    return make_rigid(roma.unitquat_to_rotmat(quaternion / norm), poses[..., :3])
+
+
+def vectors_from_poses(T_world_ee: Tensor, gripper_open: Tensor) -> Tensor:
+    """``T_world_ee (..., 4, 4)``, ``gripper_open (...)`` → ``(..., 8)``: xyz, quaternion xyzw with ``w ≥ 0``, gripper."""
+    quaternion = roma.rotmat_to_unitquat(T_world_ee[..., :3, :3])
+    quaternion = torch.where(quaternion[..., 3:4] < 0, -quaternion, quaternion)
+    return torch.cat([T_world_ee[..., :3, 3], quaternion, gripper_open[..., None].to(T_world_ee.dtype)], dim=-1)
+
+
+class InstantPolicyPolicy(PreTrainedPolicy):
+    """Instant Policy (see :class:`InstantPolicyConfig` and the module docstring)."""
+
+    config_class = InstantPolicyConfig
+    name = "instant_policy"
+
+    def __init__(self, config: InstantPolicyConfig, dataset_stats=None, dataset_meta=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        self.config: InstantPolicyConfig = config
+        self.network = InstantPolicyNetwork(network_config(config))
+        if config.pretrained_encoder and not _LOADING_CHECKPOINT.get():
+            encoder = load_geometry_encoder(config.require_encoder_weights(), expected=self.network.config.encoder)
+            self.network.geometry_encoder.load_state_dict(encoder.state_dict())
+        self._dataset_meta = dataset_meta
+        self._training_bank: ContextBank | None = None
+        self._demo_contexts: dict[str, DemoContext] = {}
+        self._handed_in: dict[str, tuple[list[Demonstration], int]] = {}
+        self._queue: deque[Tensor] = deque()
+        self._last_gripper: Tensor | None = None
+        if config.demo_repo_id is not None:
+            open_demo_dataset(config.demo_repo_id, self._demo_root())  # fail at construction, not inside an episode
+
+    # ------------------------------------------------------------------ LeRobot interface
+    def get_optim_params(self) -> list[Tensor]:
+        """The trainable parameters (the frozen geometry encoder excluded)."""
+        return [parameter for parameter in self.parameters() if parameter.requires_grad]
+
+    def reset(self) -> None:
+        """Start a new episode: drop queued actions and the last gripper command (demo contexts are kept)."""
+        self._queue.clear()
+        self._last_gripper = None
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
+        """Training loss of a batch from the training dataset.
+
+        Args:
+            batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame,
+                ``action (B, T, 8)`` absolute EE targets (``action_is_pad (B, T)`` optional: padded actions past the
+                episode's end are replaced by its last action, i.e. the EE holds still), ``episode_index (B,)``.
+
+        Returns:
+            The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats.
+        """
+        points_world, state = self._observation(batch)
+        actions = batch.get(ACTION_KEY)
+        batch_size, horizon = len(state), self.config.horizon
+        if actions is None or tuple(actions.shape) != (batch_size, horizon, 8):
+            got = None if actions is None else tuple(actions.shape)
+            raise ValueError(f"{ACTION_KEY!r} must have shape (B, horizon, 8) = ({batch_size}, {horizon}, 8), got {got}")
+        if "episode_index" not in batch:
+            raise KeyError("instant_policy training needs 'episode_index' in the batch to draw context demonstrations")
+        actions = _hold_padded(actions, batch.get(f"{ACTION_KEY}_is_pad"))
+        if not torch.isfinite(actions).all():
+            raise ValueError(f"{ACTION_KEY!r} contains NaN or infinite values")
+
+        T_world_ee = poses_from_vectors(state)
+        T_ee_actions = invert_rigid(T_world_ee)[:, None] @ poses_from_vectors(actions)
+        gripper = (state[:, 7] > 0.5).to(state.dtype)
+        flip = torch.rand(batch_size, device=state.device) < self.config.gripper_flip_probability
+        gripper = torch.where(flip, 1.0 - gripper, gripper)
+
+        bank = self.training_bank()
+        rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,)).item()))
+        num_demos = int(rng.integers(self.config.min_demos, self.config.max_demos + 1))
+        episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
+        context_episodes = np.stack([bank.sample_context(int(episode), num_demos, rng) for episode in episodes])
+        demo_geometry = bank.encoded(context_episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
+        arrays = bank.gather(context_episodes)
+        device = state.device
+        context = self.network.encode_context(
+            None,
+            torch.from_numpy(arrays.T_world_ee).to(device),
+            torch.from_numpy(arrays.gripper_open).to(device),
+            points_world,
+            T_world_ee,
+            gripper,
+            demo_geometry=demo_geometry,
+        )
+        losses = self.network.training_loss(context, T_ee_actions, actions[..., 7].clamp(0.0, 1.0))
+        parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
+        return losses["loss"], {**parts, "num_demos": float(num_demos)}
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None, **kwargs) -> Tensor:
+        """``(B, T, 8)`` absolute world-frame EE targets (xyz, quaternion xyzw with ``w ≥ 0``, gripper 1/0).
+
+        Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together).
+        ``generator`` seeds the DDIM noise.
+        """
+        points_world, state = self._observation(batch)
+        tasks = self._batch_tasks(batch, len(state))
+        T_world_ee = poses_from_vectors(state)
+        gripper = (state[:, 7] > 0.5).to(state.dtype)
+        chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
+        for task in dict.fromkeys(tasks):
+            rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
+            demos = self.demo_context(task)
+            count = len(rows)
+            context = self.network.encode_context(
+                None,
+                demos.T_world_ee.expand(count, -1, -1, -1, -1),
+                demos.gripper_open.expand(count, -1, -1),
+                points_world[rows],
+                T_world_ee[rows],
+                gripper[rows],
+                demo_geometry=(
+                    demos.scene_positions.expand(count, -1, -1, -1, -1),
+                    demos.scene_features.expand(count, -1, -1, -1, -1),
+                ),
+            )
+            T_ee_actions, action_gripper = self.network.sample_actions(context, generator=generator)
+            chunk[rows] = vectors_from_poses(T_world_ee[rows][:, None] @ T_ee_actions, action_gripper)
+        return chunk
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """The action ``(B, 8)`` to run now: the next of ``n_action_steps`` queued actions of the last prediction.
+
+        With ``replan_on_gripper_change`` the rest of the queue is dropped after an action whose gripper command
+        differs from the previous one (the observed state before the first action) in any row, so the next call
+        predicts again from an observation taken after the gripper acted.
+        """
+        _, state = self._observation(batch)
+        if self._queue and len(self._queue[0]) != len(state):
+            raise ValueError(
+                f"batch size changed from {len(self._queue[0])} to {len(state)} within an episode; call reset() "
+                "between episodes"
+            )
+        if not self._queue:
+            chunk = self.predict_action_chunk(batch, **kwargs)
+            self._queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
+        action = self._queue.popleft()
+        previous = state[:, 7] if self._last_gripper is None or len(self._last_gripper) != len(state) else self._last_gripper
+        if self.config.replan_on_gripper_change and bool(((action[:, 7] > 0.5) != (previous > 0.5)).any()):
+            self._queue.clear()
+        self._last_gripper = action[:, 7].clone()
+        return action
+
+    # ------------------------------------------------------------------ checkpoints
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> InstantPolicyPolicy:
+        """LeRobot's ``from_pretrained``, with the encoder taken from the checkpoint and strict key checking."""
+        token = _LOADING_CHECKPOINT.set(True)
+        try:
+            return super().from_pretrained(pretrained_name_or_path, **kwargs)
+        finally:
+            _LOADING_CHECKPOINT.reset(token)
+
+    @classmethod
+    def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
+        """Refuse a checkpoint whose tensors are not exactly the network's (LeRobot loads with strict=False)."""
+        from safetensors import safe_open
+
+        with safe_open(model_file, framework="pt") as handle:
+            found = set(handle.keys())
+        expected = set(model.state_dict())
+        missing, unexpected = sorted(expected - found), sorted(found - expected)
+        if missing or unexpected:
+            raise CheckpointMismatchError(
+                f"checkpoint {model_file} does not match its config: {len(missing)} missing tensors "
+                f"{missing[:5]}, {len(unexpected)} unexpected tensors {unexpected[:5]}"
+            )
+        try:
+            super()._load_as_safetensor(model, model_file, map_location, strict=True)
+        except RuntimeError as error:
+            raise CheckpointMismatchError(f"checkpoint {model_file} does not match its config: {error}") from error
+        model.clear_context_caches()
+        return model
+
+    def clear_context_caches(self) -> None:
+        """Forget encoder outputs computed with the previous weights (training bank cache, demo contexts)."""
+        if self._training_bank is not None:
+            self._training_bank.clear_encoded()
+        self._demo_contexts.clear()
+
+    # ------------------------------------------------------------------ context
+    def training_bank(self) -> ContextBank:
+        """The bank of the training dataset's waypoints, built from ``dataset_meta`` on first use."""
+        if self._training_bank is None:
+            if self._dataset_meta is None:
+                raise RuntimeError(
+                    "instant_policy training draws context demonstrations from the training dataset: build the policy "
+                    "with dataset_meta (lerobot-train does) or call set_training_bank()"
+                )
+            self.set_training_bank(ContextBank.from_dataset_meta(self._dataset_meta, self.config.num_waypoints))
+        return self._training_bank
+
+    def set_training_bank(self, bank: ContextBank) -> None:
+        """Use ``bank`` for the training context (its waypoint count must be ``num_waypoints``)."""
+        if bank.num_waypoints != self.config.num_waypoints:
+            raise ValueError(f"the bank has L={bank.num_waypoints} waypoints, the config {self.config.num_waypoints}")
+        if bank.num_points != self.config.num_points:
+            raise ValueError(
+                f"point clouds of the wrong size: the training dataset has {bank.num_points} points per cloud, the "
+                f"policy expects {self.config.num_points}"
+            )
+        self._training_bank = bank
+
+    def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None:
+        """Use ``demonstrations`` (N of them, all of one task) as that task's context, each reduced to
+        ``num_waypoints`` (L; ``None``: the config's). Any N in 1…8 and L in 2…32 work without retraining."""
+        tasks = {demo.task for demo in demonstrations}
+        if len(tasks) != 1:
+            raise DemonstrationError(f"set_demonstrations takes demonstrations of one task, got tasks {sorted(tasks)}")
+        task = tasks.pop()
+        num_waypoints = num_waypoints or self.config.num_waypoints
+        self._demo_contexts[task] = self._make_demo_context(demonstrations, num_waypoints)
+        self._handed_in[task] = (list(demonstrations), num_waypoints)
+        self.reset()
+
+    def demo_context(self, task: str) -> DemoContext:
+        """The encoded demonstrations of ``task``: handed in, or read from ``demo_repo_id`` on first use."""
+        if task not in self._demo_contexts and task in self._handed_in:
+            self._demo_contexts[task] = self._make_demo_context(*self._handed_in[task])
+        if task not in self._demo_contexts:
+            config = self.config
+            if config.demo_repo_id is None:
+                raise DemonstrationError(
+                    f"instant_policy has no demonstrations of task {task!r}: set --policy.demo_repo_id and "
+                    "--policy.demo_root to a LeRobotDataset of demonstrations, or call set_demonstrations()"
+                )
+            demonstrations = load_demonstrations(config.demo_repo_id, self._demo_root(), task, config.num_demos)
+            self._demo_contexts[task] = self._make_demo_context(demonstrations, config.num_waypoints)
+            logger.info("instant_policy: %d demonstrations of task %r encoded", len(demonstrations), task)
+        return self._demo_contexts[task]
+
+    def _make_demo_context(self, demonstrations: list[Demonstration], num_waypoints: int) -> DemoContext:
+        low, high = SUPPORTED_DEMOS
+        if not low <= len(demonstrations) <= high:
+            raise ValueError(f"number of demonstrations N={len(demonstrations)} is outside the supported {low}…{high}")
+        low, high = SUPPORTED_WAYPOINTS
+        if not low <= num_waypoints <= high:
+            raise ValueError(f"number of waypoints L={num_waypoints} is outside the supported {low}…{high}")
+        for index, demo in enumerate(demonstrations):
+            if demo.points_world.shape[1] != self.config.num_points:
+                raise ValueError(
+                    f"point clouds of the wrong size: demonstration {index} of {demo.task!r} has "
+                    f"{demo.points_world.shape[1]} points per cloud, the policy expects {self.config.num_points}"
+                )
+        bank = ContextBank.from_demonstrations(demonstrations, num_waypoints)
+        episodes = np.arange(len(demonstrations))
+        positions, features = bank.encoded(episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
+        arrays = bank.gather(episodes)
+        device = self._device()
+        return DemoContext(
+            T_world_ee=torch.from_numpy(arrays.T_world_ee).to(device)[None],
+            gripper_open=torch.from_numpy(arrays.gripper_open).to(device)[None],
+            scene_positions=positions.to(device)[None],
+            scene_features=features.to(device)[None],
+        )
+
+    def _encode_clouds(self, points_ee: Tensor) -> tuple[Tensor, Tensor]:
+        return self.network.encode_clouds(points_ee.to(self._device()))
+
+    def _device(self) -> torch.device:
+        return next(self.parameters()).device
+
+    def _demo_root(self) -> Path:
+        """``demo_root``, or LeRobot's local cache ``$HF_LEROBOT_HOME/<demo_repo_id>`` when it is unset."""
+        from lerobot.utils.constants import HF_LEROBOT_HOME
+
+        return Path(self.config.demo_root) if self.config.demo_root else HF_LEROBOT_HOME / self.config.demo_repo_id
+
+    # ------------------------------------------------------------------ input checks
+    def _observation(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """``points_world (B, P, 3)`` and ``state (B, 8)`` of ``batch``, checked: ``ValueError`` naming the problem."""
+        for key in (POINTCLOUD_KEY, STATE_KEY):
+            if key not in batch:
+                raise KeyError(f"instant_policy needs {key!r} in the batch, got keys {sorted(batch)}")
+        points, state = batch[POINTCLOUD_KEY], batch[STATE_KEY]
+        if state.ndim != 2 or state.shape[1] != 8:
+            raise ValueError(f"{STATE_KEY!r} must have shape (B, 8), got {tuple(state.shape)}")
+        expected = (len(state), self.config.num_points, 3)
+        if tuple(points.shape) != expected:
+            raise ValueError(
+                f"point clouds of the wrong size: {POINTCLOUD_KEY!r} must have shape (B, P, 3) = {expected}, got "
+                f"{tuple(points.shape)}; resample each cloud to {self.config.num_points} points"
+            )
+        for key, value in ((POINTCLOUD_KEY, points), (STATE_KEY, state)):
+            if not torch.isfinite(value).all():
+                raise ValueError(f"{key!r} contains NaN or infinite values")
+        return points.float(), state.float()
+
+    def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
+        tasks = batch.get("task")
+        if tasks is None:
+            if len(self._handed_in) == 1:
+                return [next(iter(self._handed_in))] * batch_size
+            raise KeyError("instant_policy needs the task string of every batch row in batch['task']")
+        tasks = [tasks] * batch_size if isinstance(tasks, str) else list(tasks)
+        if len(tasks) != batch_size:
+            raise ValueError(f"batch['task'] has {len(tasks)} entries for a batch of {batch_size}")
+        return tasks
+
+
+def _hold_padded(actions: Tensor, is_pad: Tensor | None) -> Tensor:
+    """Replace padded actions ``(B, T, 8)`` (``is_pad (B, T)`` True past the episode's end) by the row's last real one."""
+    if is_pad is None or not bool(is_pad.any()):
+        return actions
+    steps = torch.arange(actions.shape[1], device=actions.device).expand_as(is_pad)
+    last_real = torch.where(is_pad, torch.zeros_like(steps), steps).amax(dim=1)
+    held = actions.gather(1, last_real[:, None, None].expand(-1, actions.shape[1], actions.shape[2]))
+    return torch.where(is_pad[..., None], held, actions)

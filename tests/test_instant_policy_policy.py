@@ -1,0 +1,374 @@
+"""``InstantPolicyPolicy`` (issue 5, parts 6 and 8): relative actions that do not depend on where the world is,
+learning on a tiny dataset, any N and L at inference, the action queue, clear errors for bad input, strict
+checkpoints, the save/load round trip with processors, and ``push_to_hub`` against a stand-in for the Hub API."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+from synthetic_demos import NUM_FRAMES, make_demonstration, object_pose, write_demo_dataset
+
+from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.data.demonstrations import Demonstration, DemonstrationError
+from lerobot_instant_policy.data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.geometry.se3 import make_pose, pose_from_pos_quat, pose_to_pos_quat, transform_points
+from lerobot_instant_policy.modeling_instant_policy import (
+    CheckpointMismatchError,
+    InstantPolicyPolicy,
+    _hold_padded,
+    poses_from_vectors,
+)
+from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
+
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
+
+TASK = "lift"
+REPO = "local/ip_policy_tiny"
+
+
+def lift_demos(count: int = 3) -> list[Demonstration]:
+    poses = [object_pose(0.5, 0.0, 0.0), object_pose(0.45, 0.1, 20.0), object_pose(0.4, 0.15, 55.0),
+             object_pose(0.55, -0.1, -40.0)]
+    return [make_demonstration(poses[index], TASK, seed=index) for index in range(count)]
+
+
+def live_observation(frame: int = 2, batch: int = 1) -> dict:
+    """The lift task's frame ``frame`` with the object at a pose no demonstration had."""
+    demo = make_demonstration(object_pose(0.52, -0.05, 35.0), TASK, seed=11)
+    return {
+        POINTCLOUD_KEY: torch.from_numpy(demo.points_world[frame]).repeat(batch, 1, 1),
+        STATE_KEY: torch.from_numpy(demo.state[frame]).repeat(batch, 1),
+        "task": [TASK] * batch,
+    }
+
+
+def relative_actions(observation: dict, chunk: torch.Tensor) -> torch.Tensor:
+    """``T_EA (B, T, 4, 4)`` of absolute actions ``chunk (B, T, 8)`` relative to the observed EE pose."""
+    return torch.linalg.inv(poses_from_vectors(observation[STATE_KEY]))[:, None] @ poses_from_vectors(chunk)
+
+
+def moved_pose_rows(G: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Pose rows ``(F, 8)`` (xyz, quaternion xyzw, gripper) moved by the rigid transform ``G``."""
+    out = rows.copy()
+    for index, row in enumerate(rows):
+        position, quat = pose_to_pos_quat(G @ pose_from_pos_quat(row[:3], row[3:7]))
+        out[index, :3], out[index, 3:7] = position, quat
+    return out
+
+
+def moved_demo(G: np.ndarray, demo: Demonstration) -> Demonstration:
+    points = np.stack([transform_points(G, cloud) for cloud in demo.points_world]).astype(np.float32)
+    return Demonstration(points, moved_pose_rows(G, demo.state), moved_pose_rows(G, demo.action), demo.task)
+
+
+@pytest.fixture(scope="module")
+def policy():
+    model = InstantPolicyPolicy(InstantPolicyConfig(device="cpu"))
+    model.eval()
+    return model
+
+
+def test_predicted_chunk_is_absolute_poses_in_the_contract_layout(policy):
+    policy.set_demonstrations(lift_demos(2))
+    chunk = policy.predict_action_chunk(live_observation(batch=2), generator=torch.Generator().manual_seed(0))
+    assert chunk.shape == (2, policy.config.horizon, 8) and torch.isfinite(chunk).all()
+    assert torch.allclose(chunk[..., 3:7].norm(dim=-1), torch.ones(2, 8), atol=1e-5)
+    assert (chunk[..., 6] >= 0).all()
+    assert set(chunk[..., 7].unique().tolist()) <= {0.0, 1.0}
+    # Action j is bounded by j · (1 cm per axis) relative to the current EE pose (the diffusion's normalisation).
+    offsets = relative_actions(live_observation(batch=2), chunk)[..., :3, 3].abs().amax(dim=(0, 2))
+    assert (offsets <= 0.01 * torch.arange(1, 9) + 1e-4).all()
+
+
+def test_relative_actions_do_not_depend_on_where_the_world_is(policy):
+    demos, observation = lift_demos(2), live_observation()
+    G = make_pose(np.array([0.3, -0.7, 0.25]), Rotation.from_euler("xyz", [25.0, -40.0, 130.0], degrees=True))
+    moved_observation = {
+        POINTCLOUD_KEY: torch.from_numpy(transform_points(G, observation[POINTCLOUD_KEY][0].numpy()))[None].float(),
+        STATE_KEY: torch.from_numpy(moved_pose_rows(G, observation[STATE_KEY].numpy())).float(),
+        "task": [TASK],
+    }
+    policy.set_demonstrations(demos)
+    original = policy.predict_action_chunk(observation, generator=torch.Generator().manual_seed(3))
+    policy.set_demonstrations([moved_demo(G, demo) for demo in demos])
+    moved = policy.predict_action_chunk(moved_observation, generator=torch.Generator().manual_seed(3))
+    T_original, T_moved = relative_actions(observation, original), relative_actions(moved_observation, moved)
+    assert torch.allclose(T_original, T_moved, atol=2e-4), (T_original - T_moved).abs().max()
+    assert torch.equal(original[..., 7], moved[..., 7])
+    # The absolute actions did move with the world (the test is not comparing two constants).
+    assert not torch.allclose(original[..., :3], moved[..., :3], atol=1e-2)
+
+
+def test_any_number_of_demonstrations_and_waypoints_at_inference(policy):
+    observation = live_observation()
+    for num_demos, num_waypoints in [(1, 4), (4, NUM_FRAMES), (2, 2)]:
+        policy.set_demonstrations(lift_demos(num_demos), num_waypoints=num_waypoints)
+        context = policy.demo_context(TASK)
+        assert (context.num_demos, context.num_waypoints) == (num_demos, num_waypoints)
+        chunk = policy.predict_action_chunk(observation, generator=torch.Generator().manual_seed(0))
+        assert chunk.shape == (1, 8, 8) and torch.isfinite(chunk).all()
+
+
+def test_select_action_runs_the_queue_and_replans_after_a_gripper_change(policy, monkeypatch):
+    calls = []
+
+    def fake_chunk(batch, **kwargs):
+        calls.append(1)
+        chunk = torch.zeros(1, 8, 8)
+        chunk[..., 6] = 1.0
+        chunk[..., 7] = torch.tensor([1, 1, 1, 0, 0, 0, 0, 0], dtype=torch.float32)  # closes at action 3
+        return chunk
+
+    monkeypatch.setattr(policy, "predict_action_chunk", fake_chunk)
+    policy.reset()
+    observation = live_observation()  # gripper open
+    grippers = [float(policy.select_action(observation)[0, 7]) for _ in range(5)]
+    # actions 0, 1, 2 (open), 3 (closes: queue dropped), then a new chunk's action 0
+    assert grippers == [1.0, 1.0, 1.0, 0.0, 1.0] and len(calls) == 2
+    policy.config.replan_on_gripper_change = False
+    try:
+        policy.reset()
+        calls.clear()
+        for _ in range(8):
+            policy.select_action(observation)
+        assert len(calls) == 1
+    finally:
+        policy.config.replan_on_gripper_change = True
+    policy.reset()
+    policy.select_action(observation)
+    with pytest.raises(ValueError, match="batch size changed"):
+        policy.select_action(live_observation(batch=2))
+    policy.reset()
+
+
+def test_padded_actions_hold_the_last_real_action():
+    actions = torch.arange(2 * 4 * 8, dtype=torch.float32).view(2, 4, 8)
+    is_pad = torch.tensor([[False, False, True, True], [False, False, False, False]])
+    held = _hold_padded(actions, is_pad)
+    assert torch.equal(held[0, 2], actions[0, 1]) and torch.equal(held[0, 3], actions[0, 1])
+    assert torch.equal(held[0, :2], actions[0, :2]) and torch.equal(held[1], actions[1])
+
+
+# ---------------------------------------------------------------------------------------------- training
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """Three lift demonstrations (12 frames each) as a LeRobotDataset with ``horizon`` action chunks."""
+    from lerobot.datasets import LeRobotDataset
+
+    root = tmp_path_factory.mktemp("ip_policy") / "tiny"
+    poses = [object_pose(0.5, 0.0, 0.0), object_pose(0.45, 0.1, 20.0), object_pose(0.4, 0.15, 55.0)]
+    write_demo_dataset(root, REPO, [(TASK, pose) for pose in poses])
+    delta = {ACTION_KEY: [step / 10 for step in range(8)]}
+    return LeRobotDataset(REPO, root=root, delta_timestamps=delta)
+
+
+def test_loss_falls_when_overfitting_a_tiny_dataset(tiny_dataset):
+    torch.manual_seed(0)
+    config = InstantPolicyConfig(device="cpu", optimizer_lr=1e-3, reencode_action_clouds=False, max_demos=1)
+    policy = InstantPolicyPolicy(config, dataset_meta=tiny_dataset.meta)
+    frames = [0, 4, 8, 12, 17, 26]  # descending, grasping and lifting frames of the three episodes
+    batch = next(iter(torch.utils.data.DataLoader(torch.utils.data.Subset(tiny_dataset, frames), batch_size=6)))
+    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=config.optimizer_lr)
+    policy.train()
+    losses = []
+    for _ in range(30):
+        loss, parts = policy.forward(batch)
+        assert set(parts) == {"translation", "rotation", "gripper", "num_demos"}
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(float(loss.detach()))
+    first, last = np.mean(losses[:5]), np.mean(losses[-5:])
+    assert last < 0.6 * first, losses
+    # The frozen encoder never changes, and the training bank stays out of the state dict.
+    assert not any(key.startswith("_training_bank") for key in policy.state_dict())
+    assert all(not parameter.requires_grad for parameter in policy.network.geometry_encoder.parameters())
+    assert policy.training_bank().num_encoded == 3
+
+
+def test_gripper_flip_probability_changes_the_current_gripper_state(tiny_dataset, monkeypatch):
+    policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", gripper_flip_probability=1.0),
+                                 dataset_meta=tiny_dataset.meta)
+    seen = []
+    encode_context = policy.network.encode_context
+    monkeypatch.setattr(policy.network, "encode_context",
+                        lambda *args, **kwargs: seen.append(args[5].clone()) or encode_context(*args, **kwargs))
+    batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=4, shuffle=False)))
+    policy.forward(batch)
+    assert torch.equal(seen[0], 1.0 - (batch[STATE_KEY][:, 7] > 0.5).float())
+    policy.config.gripper_flip_probability = 0.0
+    policy.forward(batch)
+    assert torch.equal(seen[1], (batch[STATE_KEY][:, 7] > 0.5).float())
+
+
+def test_training_needs_the_dataset_and_an_episode_index(tiny_dataset):
+    batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=2, shuffle=False)))
+    with pytest.raises(RuntimeError, match="dataset_meta"):
+        InstantPolicyPolicy(InstantPolicyConfig(device="cpu")).forward(batch)
+    policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu"), dataset_meta=tiny_dataset.meta)
+    with pytest.raises(KeyError, match="episode_index"):
+        policy.forward({key: value for key, value in batch.items() if key != "episode_index"})
+    with pytest.raises(ValueError, match="action"):
+        policy.forward({**batch, ACTION_KEY: batch[ACTION_KEY][:, :3]})
+    with pytest.raises(DemonstrationError, match="needs at least 20 frames"):
+        InstantPolicyPolicy(InstantPolicyConfig(device="cpu", num_waypoints=20),
+                            dataset_meta=tiny_dataset.meta).forward(batch)
+
+
+# ---------------------------------------------------------------------------------------------- bad input
+
+
+def test_bad_observations_are_refused_with_clear_errors(policy):
+    policy.set_demonstrations(lift_demos(2))
+    observation = live_observation()
+    nan_cloud = observation[POINTCLOUD_KEY].clone()
+    nan_cloud[0, 5, 1] = float("nan")
+    with pytest.raises(ValueError, match="observation.pointcloud.*NaN"):
+        policy.predict_action_chunk({**observation, POINTCLOUD_KEY: nan_cloud})
+    nan_state = observation[STATE_KEY].clone()
+    nan_state[0, 0] = float("nan")
+    with pytest.raises(ValueError, match="observation.state.*NaN"):
+        policy.select_action({**observation, STATE_KEY: nan_state})
+    with pytest.raises(ValueError, match="wrong size.*2048"):
+        policy.predict_action_chunk({**observation, POINTCLOUD_KEY: observation[POINTCLOUD_KEY][:, :1000]})
+    with pytest.raises(KeyError, match="observation.pointcloud"):
+        policy.predict_action_chunk({STATE_KEY: observation[STATE_KEY], "task": [TASK]})
+    with pytest.raises(DemonstrationError, match="no demonstrations of task 'stack'"):
+        policy.predict_action_chunk({**observation, "task": ["stack"]})
+
+
+def test_bad_demonstrations_are_refused_with_clear_errors(policy):
+    demos = lift_demos(4)
+    with pytest.raises(ValueError, match="N=9 is outside"):
+        policy.set_demonstrations(demos * 2 + demos[:1])
+    with pytest.raises(ValueError, match="L=1 is outside"):
+        policy.set_demonstrations(demos[:2], num_waypoints=1)
+    with pytest.raises(ValueError, match="L=33 is outside"):
+        policy.set_demonstrations(demos[:2], num_waypoints=33)
+    with pytest.raises(DemonstrationError, match="cannot give 20 waypoints"):
+        policy.set_demonstrations(demos[:2], num_waypoints=20)
+    small = Demonstration(demos[0].points_world[:, :512], demos[0].state, demos[0].action, TASK)
+    with pytest.raises(ValueError, match="wrong size.*512 points"):
+        policy.set_demonstrations([small])
+    with pytest.raises(DemonstrationError, match="one task"):
+        policy.set_demonstrations([demos[0], make_demonstration(object_pose(0.5, 0, 0), "push", seed=0)])
+
+
+def _write_dataset_without(root: Path, missing: str) -> None:
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.data.lerobot_format import contract_features
+
+    features = {key: value for key, value in contract_features().items() if key != missing}
+    dataset = LeRobotDataset.create("local/broken", fps=10, features=features, root=root, use_videos=False)
+    demo = lift_demos(1)[0]
+    rows = {POINTCLOUD_KEY: demo.points_world, STATE_KEY: demo.state, ACTION_KEY: demo.action}
+    for frame in range(3):
+        dataset.add_frame({**{key: rows[key][frame] for key in features}, "task": TASK})
+    dataset.save_episode()
+    dataset.finalize()
+
+
+@pytest.mark.parametrize("missing", [POINTCLOUD_KEY, STATE_KEY])
+def test_demo_dataset_without_point_clouds_or_ee_poses_is_refused(tmp_path, missing):
+    _write_dataset_without(tmp_path / "broken", missing)
+    config = InstantPolicyConfig(device="cpu", demo_repo_id="local/broken", demo_root=str(tmp_path / "broken"))
+    with pytest.raises(DemonstrationError, match=f"missing key '{missing}'"):
+        InstantPolicyPolicy(config)
+
+
+def test_demo_dataset_without_the_task_or_with_too_few_frames(tiny_dataset):
+    root = str(tiny_dataset.root)
+    policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", demo_repo_id=REPO, demo_root=root))
+    with pytest.raises(DemonstrationError, match="no episode of task 'stack'.*lift"):
+        policy.predict_action_chunk({**live_observation(), "task": ["stack"]})
+    chunk = policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(0))
+    assert chunk.shape == (1, 8, 8) and policy.demo_context(TASK).num_demos == 2
+    long = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", demo_repo_id=REPO, demo_root=root, num_waypoints=13))
+    with pytest.raises(DemonstrationError, match="12 frames cannot give 13 waypoints"):
+        long.predict_action_chunk(live_observation())
+
+
+# ---------------------------------------------------------------------------------------------- checkpoints
+
+
+def _predict(policy: InstantPolicyPolicy) -> torch.Tensor:
+    policy.set_demonstrations(lift_demos(2))
+    return policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(5))
+
+
+def test_save_and_load_round_trip_with_processors(policy, tmp_path):
+    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
+
+    preprocessor, postprocessor = make_instant_policy_pre_post_processors(policy.config)
+    policy.save_pretrained(tmp_path)
+    preprocessor.save_pretrained(tmp_path)
+    postprocessor.save_pretrained(tmp_path)
+    loaded = InstantPolicyPolicy.from_pretrained(tmp_path)
+    assert loaded.config.hidden_dim == policy.config.hidden_dim and not loaded.training
+    for key, value in policy.state_dict().items():
+        assert torch.equal(value, loaded.state_dict()[key]), key
+    assert torch.equal(_predict(policy), _predict(loaded))
+
+    pre = PolicyProcessorPipeline.from_pretrained(tmp_path, config_filename="policy_preprocessor.json")
+    post = PolicyProcessorPipeline.from_pretrained(
+        tmp_path, config_filename="policy_postprocessor.json", to_transition=policy_action_to_transition,
+        to_output=transition_to_policy_action,
+    )
+    observation = live_observation()
+    processed = pre(dict(observation))
+    for key in (POINTCLOUD_KEY, STATE_KEY):
+        assert torch.equal(processed[key], observation[key])  # identity normalisation
+    action = loaded.select_action(processed)
+    assert torch.equal(post(action), action)
+    loaded.reset()
+
+
+def test_a_checkpoint_that_does_not_match_its_config_is_refused(policy, tmp_path):
+    policy.save_pretrained(tmp_path)
+    config_file = tmp_path / "config.json"
+    saved = json.loads(config_file.read_text())
+    config_file.write_text(json.dumps({**saved, "context_layers": 3}))
+    with pytest.raises(CheckpointMismatchError, match="34 missing tensors.*context_network.layers.1"):
+        InstantPolicyPolicy.from_pretrained(tmp_path)
+    config_file.write_text(json.dumps({**saved, "hidden_dim": 64}))
+    with pytest.raises(CheckpointMismatchError, match="size mismatch"):
+        InstantPolicyPolicy.from_pretrained(tmp_path)
+
+
+def test_push_to_hub_uploads_a_loadable_policy(policy, tmp_path, monkeypatch):
+    import huggingface_hub
+    import lerobot.utils.hub
+
+    uploads = []
+
+    class RecordingHfApi:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def create_repo(self, repo_id, **kwargs):
+            return huggingface_hub.RepoUrl(f"https://huggingface.co/{repo_id}")
+
+        def upload_folder(self, repo_id, folder_path, **kwargs):
+            copy = tmp_path / "uploaded" / str(len(uploads))
+            copy.mkdir(parents=True)
+            for path in Path(folder_path).iterdir():
+                (copy / path.name).write_bytes(path.read_bytes())
+            uploads.append({"repo_id": repo_id, "files": sorted(p.name for p in copy.iterdir()), "copy": copy, **kwargs})
+            return f"https://huggingface.co/{repo_id}/commit/0"
+
+    monkeypatch.setattr(huggingface_hub, "HfApi", RecordingHfApi)
+    monkeypatch.setattr(lerobot.utils.hub, "HfApi", RecordingHfApi)
+    policy.push_to_hub("someone/instant-policy-test")
+    assert len(uploads) == 1 and uploads[0]["repo_id"] == "someone/instant-policy-test"
+    assert {"config.json", "model.safetensors"} <= set(uploads[0]["files"])
+    loaded = InstantPolicyPolicy.from_pretrained(uploads[0]["copy"])
+    assert torch.equal(_predict(policy), _predict(loaded))
