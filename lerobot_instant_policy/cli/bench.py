@@ -88,11 +88,17 @@ def main(argv: list[str] | None = None) -> int:
     inference = commands.add_parser("inference", help="instant_policy milliseconds per control step")
     inference.add_argument("--preset", choices=["small", "paper"], default="small")
     inference.add_argument("--repeats", type=int, default=5)
+    inference.add_argument(
+        "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
+    )
     inference.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     train_step = commands.add_parser("train-step", help="instant_policy training samples per second, peak memory")
     train_step.add_argument("--preset", choices=["small", "paper"], default="small")
     train_step.add_argument("--batch-size", type=int, default=8)
     train_step.add_argument("--repeats", type=int, default=5)
+    train_step.add_argument(
+        "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
+    )
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
     if args.command == "inference":
@@ -100,13 +106,13 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--repeats must be positive")
         from .bench_policy import bench_inference
 
-        result = bench_inference(args.preset, repeats=args.repeats)
+        result = bench_inference(args.preset, repeats=args.repeats, **_reencode(args))
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size) <= 0:
             parser.error("--repeats and --batch-size must be positive")
         from .bench_policy import bench_train_step
 
-        result = bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats)
+        result = bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_reencode(args))
     elif args.command == "env":
         if min(args.steps, args.repeats) <= 0:
             parser.error("--steps and --repeats must be positive")
@@ -125,6 +131,12 @@ def main(argv: list[str] | None = None) -> int:
         result = bench_generate(args.tasks, args.workers, args.repeats)
     print(json.dumps(result, indent=None if args.json else 2))
     return 0
+
+
+def _reencode(args) -> dict:
+    if args.reencode_action_clouds is None:
+        return {}
+    return {"reencode_action_clouds": args.reencode_action_clouds == "true"}
 
 
 if __name__ == "__main__":

@@ -42,11 +42,15 @@ def _demo(rng: np.random.Generator, frames: int, points: int, task: str) -> Demo
     return Demonstration(np.repeat(cloud[None], frames, axis=0), state, state.copy(), task)
 
 
-def bench_inference(preset: str = "small", num_demos: int = 2, num_waypoints: int = 10, repeats: int = 5) -> dict:
+def bench_inference(
+    preset: str = "small", num_demos: int = 2, num_waypoints: int = 10, repeats: int = 5, **overrides
+) -> dict:
     """Median milliseconds of one ``predict_action_chunk`` (K=4, T=8, batch 1, demo context cached)."""
     from ..modeling_instant_policy import InstantPolicyPolicy
 
-    config = _config(preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4)
+    config = _config(
+        preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4, **overrides
+    )
     policy = InstantPolicyPolicy(config).to(config.device).eval()
     rng = np.random.default_rng(0)
     policy.set_demonstrations([_demo(rng, 2 * num_waypoints, config.num_points, "bench") for _ in range(num_demos)])
@@ -75,12 +79,14 @@ def bench_inference(preset: str = "small", num_demos: int = 2, num_waypoints: in
     }
 
 
-def bench_train_step(preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5) -> dict:
+def bench_train_step(
+    preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5, **overrides
+) -> dict:
     """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed, encoder cache warm),
     and the process's peak resident memory."""
     from ..modeling_instant_policy import InstantPolicyPolicy
 
-    config = _config(preset, min_demos=num_demos, max_demos=num_demos)
+    config = _config(preset, min_demos=num_demos, max_demos=num_demos, **overrides)
     policy = InstantPolicyPolicy(config).to(config.device).train()
     rng = np.random.default_rng(0)
     L, P, T = config.num_waypoints, config.num_points, config.horizon
