@@ -11,11 +11,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
+from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
-from .data.lerobot_format import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, STATE_KEY
+from .data.lerobot_format import POINTCLOUD_KEY
 from .geometry.gripper import GRIPPER_KEYPOINTS
+from .policy_features import (
+    check_contract_features,
+    contract_input_features,
+    contract_output_features,
+    identity_normalization,
+)
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
@@ -136,23 +142,9 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     push_to_hub: bool = False
 
-    input_features: dict[str, PolicyFeature] | None = field(
-        default_factory=lambda: {
-            POINTCLOUD_KEY: PolicyFeature(type=FeatureType.STATE, shape=(NUM_POINTS, 3)),
-            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(8,)),
-        }
-    )
-    output_features: dict[str, PolicyFeature] | None = field(
-        default_factory=lambda: {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(8,))}
-    )
-    normalization_mapping: dict[str, NormalizationMode] = field(
-        default_factory=lambda: {
-            "VISUAL": NormalizationMode.IDENTITY,
-            "STATE": NormalizationMode.IDENTITY,
-            "ENV": NormalizationMode.IDENTITY,
-            "ACTION": NormalizationMode.IDENTITY,
-        }
-    )
+    input_features: dict[str, PolicyFeature] | None = field(default_factory=contract_input_features)
+    output_features: dict[str, PolicyFeature] | None = field(default_factory=contract_output_features)
+    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -253,20 +245,7 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)``, writes ``action (8,)``."""
-        inputs = self.input_features or {}
-        outputs = self.output_features or {}
-        problems = []
-        cloud = inputs.get(POINTCLOUD_KEY)
-        if cloud is None or len(cloud.shape) != 2 or cloud.shape[1] != 3 or cloud.shape[0] < 1:
-            problems.append(f"input {POINTCLOUD_KEY!r} of shape (P, 3), got {cloud.shape if cloud else 'nothing'}")
-        state = inputs.get(STATE_KEY)
-        if state is None or tuple(state.shape) != (8,):
-            problems.append(f"input {STATE_KEY!r} of shape (8,), got {state.shape if state else 'nothing'}")
-        action = outputs.get(ACTION_KEY)
-        if action is None or tuple(action.shape) != (8,):
-            problems.append(f"output {ACTION_KEY!r} of shape (8,), got {action.shape if action else 'nothing'}")
-        if problems:
-            raise ValueError("instant_policy needs " + "; ".join(problems))
+        check_contract_features("instant_policy", self.input_features, self.output_features)
 
     @property
     def num_points(self) -> int:
