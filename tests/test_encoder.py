@@ -178,7 +178,7 @@ def test_invalid_config_is_refused():
         GeometryEncoderConfig(num_centroids=(16, 32), layer_widths=((8,), (8,)))
     with pytest.raises(ValueError, match="one entry per"):
         GeometryEncoderConfig(num_centroids=(16,), layer_widths=((8,), (8,)))
-    with pytest.raises(ValueError, match="unknown geometry encoder config keys"):
+    with pytest.raises(ValueError, match="unknown GeometryEncoderConfig keys"):
         GeometryEncoderConfig.from_dict({"num_centroids": [16], "layer_widths": [[8]], "depth": 3})
 
 

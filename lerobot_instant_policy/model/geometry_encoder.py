@@ -10,12 +10,12 @@ not matter.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from ..config_io import config_from_dict
 from .encodings import encoding_dim, sinusoidal_encoding
 from .point_ops import (
     farthest_point_sampling,
@@ -62,10 +62,7 @@ class GeometryEncoderConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> GeometryEncoderConfig:
-        unknown = set(values) - {field.name for field in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown geometry encoder config keys {sorted(unknown)}")
-        return cls(**values)
+        return config_from_dict(cls, values)
 
 
 ENCODER_PRESETS: dict[str, GeometryEncoderConfig] = {

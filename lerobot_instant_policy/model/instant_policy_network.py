@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from ..config_io import config_from_dict
 from ..geometry.gripper import GRIPPER_KEYPOINTS
 from .action_diffusion import FLOW_DIM, ActionDiffusion, invert_rigid, points_in_action_frames
 from .encodings import encoding_dim, sinusoidal_encoding
@@ -119,10 +120,7 @@ class InstantPolicyNetworkConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> InstantPolicyNetworkConfig:
-        unknown = set(values) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown InstantPolicyNetworkConfig keys {sorted(unknown)}")
-        return cls(**values)
+        return config_from_dict(cls, values)
 
 
 NETWORK_PRESETS: dict[str, dict] = {
