@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from .eval_suite import run_task
+from .eval_suite import SuiteSettings, run_task
 
 SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "checkpoints" / "instant_policy"
 
@@ -39,19 +39,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     policy, policy_path, reason = best_policy(args.checkpoint)
     print(f"policy: {policy} ({reason})", flush=True)
-    run_args = argparse.Namespace(
-        policy=policy,
-        policy_path=policy_path,
-        task_module=None,
-        episodes=args.episodes,
-        batch_size=args.batch_size,
-        num_demos=2,
-        demo_seed=0,
-        eval_seed=1000,
-        out=args.out,
+    settings = SuiteSettings(
+        policy=policy, policy_path=policy_path, out=args.out, episodes=args.episodes, batch_size=args.batch_size
     )
     try:
-        output_dir = run_task(run_args, args.task)
+        output_dir = run_task(settings, args.task)
     except (ValueError, RuntimeError) as error:
         print(f"lerobot-ip-demo: error: {error}", file=sys.stderr)
         return 2

@@ -17,12 +17,28 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from .eval_table import collect_results, format_table, results_json, save_bar_chart
 from .record_demos import record
 
 POLICIES = ("demo_replay", "instant_policy")
+
+
+@dataclass(frozen=True)
+class SuiteSettings:
+    """What one evaluation of a policy on ``bullet_tabletop`` tasks records, runs and where it writes."""
+
+    policy: str = "demo_replay"
+    policy_path: str | None = None
+    out: Path = Path("outputs/eval_suite")
+    episodes: int = 10
+    batch_size: int = 2
+    num_demos: int = 2
+    demo_seed: int = 0
+    eval_seed: int = 1000
+    task_module: str | None = None
 
 
 def demo_root(out: Path, task: str, num_demos: int, demo_seed: int) -> Path:
@@ -61,32 +77,38 @@ def lerobot_eval_command(
     return command
 
 
-def run_task(args: argparse.Namespace, task: str) -> Path:
+def run_task(settings: SuiteSettings, task: str) -> Path:
     """Record (or reuse) the demonstrations of ``task`` and evaluate; returns the lerobot-eval output dir."""
-    demos = demo_root(args.out, task, args.num_demos, args.demo_seed)
+    demos = demo_root(settings.out, task, settings.num_demos, settings.demo_seed)
     if not (demos / "meta" / "info.json").is_file():
         record(
-            task, args.num_demos, demos, f"local/{task}", args.demo_seed, overwrite=True, task_module=args.task_module
+            task,
+            settings.num_demos,
+            demos,
+            f"local/{task}",
+            settings.demo_seed,
+            overwrite=True,
+            task_module=settings.task_module,
         )
-    output_dir = args.out / "runs" / args.policy / task
+    output_dir = settings.out / "runs" / settings.policy / task
     if output_dir.exists():
         shutil.rmtree(output_dir)
     command = lerobot_eval_command(
         task,
-        args.policy,
-        args.policy_path,
+        settings.policy,
+        settings.policy_path,
         demos,
-        args.num_demos,
-        args.episodes,
-        args.batch_size,
-        args.eval_seed,
+        settings.num_demos,
+        settings.episodes,
+        settings.batch_size,
+        settings.eval_seed,
         output_dir,
-        args.task_module,
+        settings.task_module,
     )
     started = time.perf_counter()
     completed = subprocess.run(command, capture_output=True, text=True)
     if completed.returncode != 0:
-        log = args.out / "runs" / args.policy / f"{task}.log"
+        log = settings.out / "runs" / settings.policy / f"{task}.log"
         log.parent.mkdir(parents=True, exist_ok=True)
         log.write_text(completed.stdout + completed.stderr)
         tail = "\n".join((completed.stdout + completed.stderr).strip().splitlines()[-15:])
@@ -132,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--policy instant_policy needs --policy-path (a pretrained_model directory)")
     try:
         tasks = resolve_tasks(args.tasks, args.task_module)
-        runs = [run_task(args, task) for task in tasks]
+        settings = SuiteSettings(**{field.name: getattr(args, field.name) for field in fields(SuiteSettings)})
+        runs = [run_task(settings, task) for task in tasks]
     except (ValueError, RuntimeError, FileExistsError) as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2
