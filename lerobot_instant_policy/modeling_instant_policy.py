@@ -32,7 +32,13 @@ from torch import Tensor
 
 from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
 from .data.context_bank import ContextBank
-from .data.demonstrations import Demonstration, DemonstrationError, load_demonstrations, open_demo_dataset
+from .data.demonstrations import (
+    Demonstration,
+    DemonstrationError,
+    demo_dataset_root,
+    load_demonstrations,
+    open_demo_dataset,
+)
 from .data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from .model.action_diffusion import invert_rigid, make_rigid
 from .model.geometry_encoder import encoder_preset
@@ -369,10 +375,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return next(self.parameters()).device
 
     def _demo_root(self) -> Path:
-        """``demo_root``, or LeRobot's local cache ``$HF_LEROBOT_HOME/<demo_repo_id>`` when it is unset."""
-        from lerobot.utils.constants import HF_LEROBOT_HOME
-
-        return Path(self.config.demo_root) if self.config.demo_root else HF_LEROBOT_HOME / self.config.demo_repo_id
+        return demo_dataset_root(self.config.demo_repo_id, self.config.demo_root)
 
     # ------------------------------------------------------------------ input checks
     def _observation(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:

@@ -19,7 +19,13 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from scipy.spatial.transform import Rotation
 from torch import Tensor
 
-from ..data.demonstrations import Demonstration, DemonstrationError, load_demonstrations, open_demo_dataset
+from ..data.demonstrations import (
+    Demonstration,
+    DemonstrationError,
+    demo_dataset_root,
+    load_demonstrations,
+    open_demo_dataset,
+)
 from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 from ..geometry.registration import RegistrationResult, register_rigid
 from .configuration_demo_replay import DemoReplayConfig
@@ -76,10 +82,7 @@ class DemoReplayPolicy(PreTrainedPolicy):
         return self._demonstrations[task]
 
     def _demo_root(self) -> Path:
-        """``demo_root``, or LeRobot's local cache ``$HF_LEROBOT_HOME/<demo_repo_id>`` when it is unset."""
-        from lerobot.utils.constants import HF_LEROBOT_HOME
-
-        return Path(self.config.demo_root) if self.config.demo_root else HF_LEROBOT_HOME / self.config.demo_repo_id
+        return demo_dataset_root(self.config.demo_repo_id, self.config.demo_root)
 
     @property
     def plans(self) -> list[ReplayPlan] | None:

@@ -89,6 +89,15 @@ def load_demonstrations(repo_id: str, root: str | Path, task: str, num_demos: in
     return demonstrations
 
 
+def demo_dataset_root(repo_id: str, root: str | Path | None) -> Path:
+    """``root``, or LeRobot's local cache ``$HF_LEROBOT_HOME/<repo_id>`` when it is unset (never a download)."""
+    if root:
+        return Path(root)
+    from lerobot.utils.constants import HF_LEROBOT_HOME
+
+    return HF_LEROBOT_HOME / repo_id
+
+
 def open_demo_dataset(repo_id: str, root: str | Path):
     """The LeRobotDataset at ``root`` (offline), checked to be in the data contract; ``DemonstrationError`` if not."""
     root = Path(root)
