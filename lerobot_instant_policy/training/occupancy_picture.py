@@ -52,10 +52,9 @@ def draw_occupancy(network: OccupancyNetwork, object_id: str, png: Path) -> dict
     decoded_nodes = nearest_centroid(torch.from_numpy(decoded)[None], node_positions)[0].numpy()
     point_nodes = nearest_centroid(points_t, node_positions)[0].numpy()
 
-    surface = transform_points(T_world_object, dense_surface(object_id, OccupancyDataConfig().dense_samples))
-    queries, labels = sample_queries(
-        points.astype(np.float64), surface, np.random.default_rng(0), OccupancyDataConfig()
-    )
+    data_config = OccupancyDataConfig()
+    surface = transform_points(T_world_object, dense_surface(object_id, data_config.dense_samples))
+    queries, labels = sample_queries(points.astype(np.float64), surface, np.random.default_rng(0), data_config)
     logits = network.decode(node_positions, node_features, torch.from_numpy(queries)[None])[0]
     metrics = classification_metrics(logits, torch.from_numpy(labels))
 
