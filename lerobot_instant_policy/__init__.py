@@ -6,5 +6,5 @@ datasets), ``cli`` (``lerobot-ip-*`` commands).
 
 __version__ = "0.1.0"
 
-# registrations: the ``instant_policy`` and ``demo_replay`` policy configs, the ``bullet_tabletop`` env config
+# registrations: the ``instant_policy``, ``demo_replay`` and ``do_nothing`` policy configs, the ``bullet_tabletop`` env config
 from . import baselines, configuration_instant_policy, sim  # noqa: E402,F401

@@ -22,6 +22,33 @@ def test_lerobot_eval_command_names_task_policy_and_demos(tmp_path):
     assert not any(part.startswith("--policy.type") for part in with_checkpoint)
 
 
+def test_policy_args_reach_lerobot_eval_and_runs_get_their_own_folder(tmp_path):
+    args = eval_suite.build_parser().parse_args(
+        ["--policy-arg", "inference_steps=8", "--policy-arg", "num_waypoints=5", "--run-name", "K8"]
+    )
+    assert args.policy_args == ["--policy.inference_steps=8", "--policy.num_waypoints=5"]
+    command = eval_suite.lerobot_eval_command(
+        "open_drawer", "demo_replay", None, tmp_path, 2, 10, 2, 1000, tmp_path / "run", policy_args=tuple(args.policy_args)
+    )
+    assert command[-2:] == ["--policy.inference_steps=8", "--policy.num_waypoints=5"]
+    settings = eval_suite.SuiteSettings(out=tmp_path, run_name="K8")
+    assert settings.runs_dir == tmp_path / "runs" / "K8"
+    assert eval_suite.SuiteSettings(out=tmp_path).runs_dir == tmp_path / "runs" / "demo_replay"
+
+
+@pytest.mark.parametrize("bad", ["inference_steps", "=8", "inference_steps=", "bad key=1"])
+def test_malformed_policy_arg_is_refused(bad, capsys):
+    with pytest.raises(SystemExit):
+        eval_suite.build_parser().parse_args(["--policy-arg", bad])
+    assert "KEY=VALUE" in capsys.readouterr().err
+
+
+def test_run_name_must_be_a_plain_folder_name(capsys):
+    with pytest.raises(SystemExit):
+        eval_suite.main(["--run-name", "../escape", "--out", "unused"])
+    assert "--run-name" in capsys.readouterr().err
+
+
 def test_unknown_task_is_refused_with_the_known_ones(capsys):
     assert eval_suite.main(["--tasks", "open_drawer,fly_to_moon", "--out", "unused"]) == 2
     error = capsys.readouterr().err

@@ -88,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     inference = commands.add_parser("inference", help="instant_policy milliseconds per control step")
     inference.add_argument("--preset", choices=["small", "paper"], default="small")
     inference.add_argument("--repeats", type=int, default=5)
+    inference.add_argument("--policy-path", help="time this checkpoint (a pretrained_model directory) instead of a fresh preset")
     inference.add_argument(
         "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
     )
@@ -106,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--repeats must be positive")
         from .bench_policy import bench_inference
 
-        result = bench_inference(args.preset, repeats=args.repeats, **_reencode(args))
+        result = bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path, **_reencode(args))
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size) <= 0:
             parser.error("--repeats and --batch-size must be positive")

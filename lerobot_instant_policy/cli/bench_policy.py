@@ -7,8 +7,11 @@ changes no timing.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import resource
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -43,15 +46,33 @@ def _demo(rng: np.random.Generator, frames: int, points: int, task: str) -> Demo
 
 
 def bench_inference(
-    preset: str = "small", num_demos: int = 2, num_waypoints: int = 10, repeats: int = 5, **overrides
+    preset: str = "small",
+    num_demos: int = 2,
+    num_waypoints: int = 10,
+    repeats: int = 5,
+    policy_path: str | None = None,
+    **overrides,
 ) -> dict:
-    """Median milliseconds of one ``predict_action_chunk`` (K=4, T=8, batch 1, demo context cached)."""
+    """Median milliseconds of one ``predict_action_chunk`` (batch 1, demo context cached).
+
+    A fresh ``preset`` policy with K=4, T=8, or the checkpoint at ``policy_path`` with its own K, T and
+    ``reencode_action_clouds`` (``overrides`` still apply).
+    """
     from ..modeling_instant_policy import InstantPolicyPolicy
 
-    config = _config(
-        preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4, **overrides
-    )
-    policy = InstantPolicyPolicy(config).to(config.device).eval()
+    if policy_path is not None:
+        config = InstantPolicyConfig.from_pretrained(policy_path)
+        fields = {"num_demos": num_demos, "num_waypoints": num_waypoints, **overrides}
+        config = dataclasses.replace(config, device="cuda" if torch.cuda.is_available() else "cpu", **fields)
+        with contextlib.redirect_stdout(sys.stderr):  # LeRobot prints "Loading weights …": keep stdout pure JSON
+            policy = InstantPolicyPolicy.from_pretrained(policy_path, config=config)
+        preset = config.preset
+    else:
+        config = _config(
+            preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4, **overrides
+        )
+        policy = InstantPolicyPolicy(config)
+    policy = policy.to(config.device).eval()
     rng = np.random.default_rng(0)
     policy.set_demonstrations([_demo(rng, 2 * num_waypoints, config.num_points, "bench") for _ in range(num_demos)])
     live = _demo(rng, 1, config.num_points, "bench")
@@ -69,7 +90,7 @@ def bench_inference(
             torch.cuda.synchronize()
         times.append(time.perf_counter() - start)
     return {
-        "benchmark": "inference", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
+        "benchmark": "inference", "preset": preset, "checkpoint": policy_path, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
         "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
         "points": config.num_points, "batch": 1,

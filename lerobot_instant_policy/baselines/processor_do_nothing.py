@@ -1,0 +1,22 @@
+"""Pre/post-processors of ``do_nothing``: LeRobot's default steps (rename, batch, device, identity normalisation)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from lerobot.processor import PolicyAction, PolicyProcessorPipeline, make_default_pre_post_processors
+
+from .configuration_do_nothing import DoNothingConfig
+
+
+def make_do_nothing_pre_post_processors(
+    config: DoNothingConfig,
+    dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
+) -> tuple[
+    PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
+    PolicyProcessorPipeline[PolicyAction, PolicyAction],
+]:
+    """LeRobot's default pipelines; the config's ``normalization_mapping`` is IDENTITY, so the state reaches the
+    policy and its copy reaches the env unchanged (metres, world frame)."""
+    return make_default_pre_post_processors(config, dataset_stats)

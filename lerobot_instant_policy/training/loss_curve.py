@@ -1,0 +1,340 @@
+"""The training curve of an ``instant_policy`` run: each checkpoint's training loss on fixed frames of a dataset.
+
+``lerobot-train --save_freq=S`` writes ``OUTPUT_DIR/checkpoints/<step, 6 digits>/pretrained_model``. For each of
+them, :func:`evaluate_loss` computes ``InstantPolicyPolicy.forward``'s loss (translation + rotation flow + gripper,
+each a mean squared error in the model's normalised units) in eval mode without gradients, on a fixed, seeded sample
+of frames of a pseudo-demonstration dataset loaded as ``lerobot-train`` loads it (the policy's delta timestamps, the
+checkpoint's preprocessor) with that dataset as the context bank. Everything random in ``forward`` (diffusion
+timesteps and noise, the number N of context demonstrations and which episodes, gripper flips) is drawn from a torch
+RNG seeded the same way for every checkpoint, so two checkpoints are compared on the same frames and the same noise.
+
+On the training dataset this is the training loss; on a dataset of held-out pseudo-tasks (objects of the library's
+held-out split) it is the validation loss. :class:`LossCurveCache` keeps per-checkpoint results in a JSON file, valid
+only for the same sample settings and the same datasets, and :func:`draw_loss_curve` plots them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import asdict, dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..data.context_bank import ContextBank
+from ..data.demonstrations import check_contract_features
+from ..data.generation import DEMOS_FILE, TASKS_FILE
+from ..modeling_instant_policy import InstantPolicyPolicy
+
+POLICY_TYPE = "instant_policy"
+LOSS_PARTS = ("loss", "translation", "rotation", "gripper")
+PREPROCESSOR_FILE = "policy_preprocessor.json"
+CACHE_FORMAT = 1
+
+
+class LossCurveError(ValueError):
+    """A run without checkpoints, a dataset that is not a pseudo-demonstration dataset, a foreign checkpoint, …"""
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """``path``: a ``pretrained_model`` directory saved by ``lerobot-train`` after ``step`` optimiser steps."""
+
+    step: int
+    path: Path
+
+
+@dataclass(frozen=True)
+class LossEstimate:
+    """Mean loss and parts over ``samples`` frames (batch means weighted by batch size)."""
+
+    loss: float
+    translation: float
+    rotation: float
+    gripper: float
+    samples: int
+
+
+class EvaluationSet:
+    """A fixed sample of frames of one pseudo-demonstration dataset (build it with :func:`load_evaluation_set`).
+
+    ``indices (S,)``: the frames, sorted. ``dataset`` (a ``LeRobotDataset`` with the policy's delta timestamps) and
+    ``bank`` (its episodes' context waypoints) are loaded on first use, so a run whose checkpoints are all cached
+    reads only the metadata.
+    """
+
+    def __init__(self, name: str, repo_id: str, meta, config, indices: np.ndarray):
+        self.name, self.repo_id, self.root, self.meta, self.config = name, repo_id, Path(meta.root), meta, config
+        self.indices = indices
+        self.fingerprint = dataset_fingerprint(self.root)
+        self.encoder_fingerprint: str | None = None
+
+    @cached_property
+    def dataset(self):
+        from lerobot.datasets import LeRobotDataset
+        from lerobot.datasets.factory import resolve_delta_timestamps
+
+        delta_timestamps = resolve_delta_timestamps(self.config, self.meta)
+        return LeRobotDataset(self.repo_id, root=self.root, delta_timestamps=delta_timestamps)
+
+    @cached_property
+    def bank(self) -> ContextBank:
+        return ContextBank.from_dataset_meta(self.meta, self.config.num_waypoints)
+
+    def describe(self) -> dict:
+        """Root, content fingerprint and sizes (episodes, pseudo-tasks, frames, sampled frames)."""
+        return {"root": str(self.root), "fingerprint": self.fingerprint, "episodes": self.meta.total_episodes,
+                "tasks": self.meta.total_tasks, "frames": self.meta.total_frames, "samples": len(self.indices)}
+
+
+# ---------------------------------------------------------------------------------------------------- checkpoints
+def find_checkpoints(run_dir: str | Path) -> list[Checkpoint]:
+    """The run's checkpoints in step order (the ``last`` link and unfinished checkpoints without weights skipped)."""
+    folder = Path(run_dir) / "checkpoints"
+    found = []
+    if folder.is_dir():
+        for entry in folder.iterdir():
+            model = entry / "pretrained_model"
+            if entry.is_symlink() or not entry.name.isdigit():
+                continue
+            if (model / "config.json").is_file() and (model / "model.safetensors").is_file():
+                found.append(Checkpoint(int(entry.name), model))
+    if not found:
+        raise LossCurveError(
+            f"no checkpoints found in {run_dir}: expected {folder}/<step>/pretrained_model with config.json and "
+            "model.safetensors, as lerobot-train --save_freq writes them"
+        )
+    return sorted(found, key=lambda checkpoint: checkpoint.step)
+
+
+def checkpoint_config(checkpoint: Checkpoint):
+    """The checkpoint's ``InstantPolicyConfig``; ``LossCurveError`` when it holds another policy type."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    config_file = checkpoint.path / "config.json"
+    try:
+        policy_type = json.loads(config_file.read_text()).get("type")
+    except (OSError, json.JSONDecodeError, AttributeError) as error:
+        raise LossCurveError(f"cannot read the policy config {config_file}: {error}") from error
+    if policy_type != POLICY_TYPE:
+        raise LossCurveError(f"checkpoint {checkpoint.path} is a {policy_type!r} policy, not {POLICY_TYPE!r}")
+    return PreTrainedConfig.from_pretrained(checkpoint.path)
+
+
+def load_checkpoint(checkpoint: Checkpoint, device: str = "cpu"):
+    """``(policy, preprocessor)`` of a checkpoint on ``device``: the policy in eval mode, the preprocessor that
+    ``lerobot-train`` saved beside it (its device step moved to ``device``)."""
+    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.processor.converters import batch_to_transition, transition_to_batch
+
+    config = checkpoint_config(checkpoint)
+    config.device = device
+    policy = InstantPolicyPolicy.from_pretrained(checkpoint.path, config=config)
+    policy.eval()
+    if not (checkpoint.path / PREPROCESSOR_FILE).is_file():
+        raise LossCurveError(f"checkpoint {checkpoint.path} has no {PREPROCESSOR_FILE}")
+    preprocessor = PolicyProcessorPipeline.from_pretrained(
+        checkpoint.path,
+        config_filename=PREPROCESSOR_FILE,
+        overrides={"device_processor": {"device": device}},
+        to_transition=batch_to_transition,
+        to_output=transition_to_batch,
+    )
+    return policy, preprocessor
+
+
+def weights_fingerprint(checkpoint: Checkpoint) -> str:
+    """SHA-256 of the checkpoint's ``model.safetensors``."""
+    digest = hashlib.sha256()
+    with open(checkpoint.path / "model.safetensors", "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 22), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+# ---------------------------------------------------------------------------------------------------- datasets
+def check_pseudo_demo_root(root: str | Path) -> Path:
+    """``root`` if it holds a pseudo-demonstration dataset written by ``lerobot-ip-generate`` (a LeRobotDataset with
+    ``meta/pseudo_tasks.jsonl`` and ``meta/pseudo_demos.jsonl``), else ``LossCurveError`` saying what is missing."""
+    root = Path(root)
+    if not root.is_dir():
+        raise LossCurveError(f"dataset root {root} does not exist")
+    missing = [name for name in ("info.json", TASKS_FILE, DEMOS_FILE) if not (root / "meta" / name).is_file()]
+    if missing:
+        raise LossCurveError(
+            f"{root} is not a pseudo-demonstration dataset (written by lerobot-ip-generate): meta/ lacks {missing}"
+        )
+    return root
+
+
+def dataset_fingerprint(root: Path) -> str:
+    """SHA-256 of the dataset's ``meta/info.json``, ``pseudo_tasks.jsonl`` and ``pseudo_demos.jsonl``: the same
+    content wherever the dataset lies, different for a regenerated or resized dataset."""
+    digest = hashlib.sha256()
+    for name in ("info.json", TASKS_FILE, DEMOS_FILE):
+        digest.update((root / "meta" / name).read_bytes())
+    return digest.hexdigest()
+
+
+def load_evaluation_set(name: str, root: str | Path, config, samples: int, seed: int,
+                        repo_id: str | None = None) -> EvaluationSet:
+    """``samples`` frames (all when the dataset has fewer) drawn without replacement with ``seed`` from the
+    pseudo-demonstration dataset at ``root`` (repo id ``local/<root name>`` unless given), for policies with the
+    ``InstantPolicyConfig`` ``config`` (its horizon and number of waypoints). ``LossCurveError`` or
+    ``DemonstrationError`` when ``root`` is missing, not a pseudo-demonstration dataset or outside the data contract.
+    """
+    from lerobot.datasets import LeRobotDatasetMetadata
+
+    if samples < 1:
+        raise LossCurveError(f"samples must be at least 1, got {samples}")
+    root = check_pseudo_demo_root(root)
+    repo_id = repo_id or f"local/{root.name}"
+    meta = LeRobotDatasetMetadata(repo_id, root=root)
+    check_contract_features(meta.features, root)
+    rng = np.random.default_rng(seed)
+    indices = np.sort(rng.choice(meta.total_frames, size=min(samples, meta.total_frames), replace=False))
+    return EvaluationSet(name, repo_id, meta, config, indices)
+
+
+# ---------------------------------------------------------------------------------------------------- evaluation
+def _encoder_fingerprint(policy: InstantPolicyPolicy) -> str:
+    digest = hashlib.sha256()
+    for name, tensor in sorted(policy.network.geometry_encoder.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()
+
+
+@torch.no_grad()
+def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: EvaluationSet, batch_size: int = 16,
+                  seed: int = 0) -> LossEstimate:
+    """The mean of ``policy.forward``'s loss and parts over ``evaluation``'s frames, in batches of ``batch_size``.
+
+    The policy's training bank becomes ``evaluation.bank`` (its cached frozen-encoder outputs are kept while the
+    encoder weights stay the same). Torch's RNG is seeded with ``seed`` inside ``torch.random.fork_rng``, so the
+    caller's RNG state is untouched and every call with the same frames, ``batch_size`` and ``seed`` draws the same
+    timesteps, noise, context episodes and gripper flips. The policy is left in the mode it was in.
+    """
+    if batch_size < 1:
+        raise LossCurveError(f"batch_size must be at least 1, got {batch_size}")
+    encoder = _encoder_fingerprint(policy)
+    if evaluation.encoder_fingerprint != encoder:
+        evaluation.bank.clear_encoded()
+        evaluation.encoder_fingerprint = encoder
+    policy.set_training_bank(evaluation.bank)
+    loader = torch.utils.data.DataLoader(
+        torch.utils.data.Subset(evaluation.dataset, evaluation.indices.tolist()), batch_size=batch_size,
+        shuffle=False, num_workers=0,
+    )
+    device = next(policy.parameters()).device
+    sums = dict.fromkeys(LOSS_PARTS, 0.0)
+    was_training = policy.training
+    policy.eval()
+    try:
+        with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+            torch.manual_seed(seed)
+            for batch in loader:
+                count = len(batch["episode_index"])
+                loss, parts = policy.forward(preprocessor(batch))
+                sums["loss"] += float(loss) * count
+                for part in LOSS_PARTS[1:]:
+                    sums[part] += parts[part] * count
+    finally:
+        policy.train(was_training)
+    total = len(evaluation.indices)
+    means = {part: value / total for part, value in sums.items()}
+    if not all(math.isfinite(value) for value in means.values()):
+        raise LossCurveError(f"non-finite loss on {evaluation.name} frames: {means}")
+    return LossEstimate(**means, samples=total)
+
+
+# ---------------------------------------------------------------------------------------------------- cache
+class LossCurveCache:
+    """Per-checkpoint results in a JSON file, valid for one ``settings`` dict (samples, batch size, seed) and one
+    ``datasets`` description (``name → EvaluationSet.describe()`` minus the root): a file written with other settings
+    or other datasets starts empty. A checkpoint's entry is reused only while its weights' SHA-256 is the same."""
+
+    def __init__(self, path: str | Path, settings: dict, datasets: dict[str, dict]):
+        self.path = Path(path)
+        self.header = {"format": CACHE_FORMAT, "settings": settings,
+                       "datasets": {name: _cache_key(description) for name, description in datasets.items()}}
+        self.descriptions = datasets
+        self.entries: dict[int, dict] = {}
+        self.discarded = False
+        if self.path.is_file():
+            try:
+                stored = json.loads(self.path.read_text())
+            except json.JSONDecodeError:
+                stored = {}
+            if {key: stored.get(key) for key in self.header} == self.header:
+                self.entries = {int(entry["step"]): entry for entry in stored.get("checkpoints", [])}
+            else:
+                self.discarded = True
+
+    def get(self, step: int, weights: str) -> dict | None:
+        entry = self.entries.get(step)
+        return entry if entry is not None and entry.get("weights") == weights else None
+
+    def put(self, step: int, weights: str, results: dict[str, LossEstimate]) -> dict:
+        entry = {"step": step, "weights": weights, **{name: asdict(result) for name, result in results.items()}}
+        self.entries[step] = entry
+        return entry
+
+    def save(self, steps: list[int]) -> None:
+        """Write the entries of ``steps`` (atomically: a killed run never leaves half a file)."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        document = {**self.header, "dataset_details": self.descriptions,
+                    "checkpoints": [self.entries[step] for step in sorted(steps) if step in self.entries]}
+        temporary = self.path.with_name(self.path.name + ".tmp")
+        temporary.write_text(json.dumps(document, indent=2))
+        os.replace(temporary, self.path)
+
+
+def _cache_key(description: dict) -> dict:
+    return {key: value for key, value in description.items() if key != "root"}
+
+
+# ---------------------------------------------------------------------------------------------------- picture
+def draw_loss_curve(entries: list[dict], datasets: dict[str, dict], labels: dict[str, str], out: str | Path,
+                    title: str) -> Path:
+    """PNG at ``out``: total loss vs training step for every dataset (left) and its three parts (right).
+
+    ``entries``: cache entries ``{"step", name: {"loss", "translation", …}}`` in step order; ``datasets``:
+    ``name → EvaluationSet.describe()``; ``labels``: ``name →`` its legend label. The loss axis is logarithmic when
+    the values span more than a factor of 10.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    steps = [entry["step"] for entry in entries]
+    figure, (total_axes, parts_axes) = plt.subplots(1, 2, figsize=(13, 5.5), constrained_layout=True)
+    for name, line_style in zip(datasets, ("-", "--", ":", "-.")):
+        total_axes.plot(steps, [entry[name]["loss"] for entry in entries], line_style, marker="o", label=labels[name])
+        for part, colour in zip(LOSS_PARTS[1:], ("tab:blue", "tab:orange", "tab:green")):
+            parts_axes.plot(steps, [entry[name][part] for entry in entries], line_style, color=colour, marker=".",
+                            label=f"{part}, {labels[name]}")
+    for axes, ylabel in ((total_axes, "loss = translation + rotation + gripper"), (parts_axes, "loss part (MSE)")):
+        values = [value for line in axes.get_lines() for value in line.get_ydata()]
+        if min(values) > 0 and max(values) / min(values) > 10:
+            axes.set_yscale("log")
+        axes.set_xlabel("training step", fontsize=12)
+        axes.set_ylabel(ylabel, fontsize=12)
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))
+        axes.grid(True, which="both", alpha=0.3)
+        axes.legend(fontsize=9)
+    total_axes.set_title("diffusion training loss", fontsize=12)
+    parts_axes.set_title("its parts", fontsize=12)
+    figure.suptitle(title, fontsize=12)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(out, dpi=110)
+    plt.close(figure)
+    return out
