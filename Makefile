@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo pseudo-demos eval-suite test install clean
+.PHONY: demo pseudo-demos train-data train results results-suite results-study eval-suite test install clean
 
 install: $(INSTALLED)
 
@@ -22,6 +22,49 @@ demo: $(INSTALLED)
 pseudo-demos: $(INSTALLED)
 	$(VENV)/bin/lerobot-ip-generate --config configs/generate/default.json --overwrite \
 		--preview outputs/pseudo_demos_preview.png
+
+# The shipped checkpoint's recipe (docs/results.md): pseudo-demonstrations only, 2 CPU cores, about an hour.
+# Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
+TRAIN_DIR ?= outputs/train/instant_policy_small
+TRAIN_STEPS ?= 2000
+train-data: $(INSTALLED)
+	test -d outputs/pseudo_demos_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate --config configs/generate/val_held_out.json
+	test -d outputs/pseudo_demos_train/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
+		--config configs/generate/train_cpu.json $(if $(wildcard outputs/pseudo_demos_train/.shards),--resume,)
+
+train: train-data
+	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(TRAIN_DIR)/checkpoints/last), \
+		--config_path=$(TRAIN_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
+		--policy.type=instant_policy --policy.preset=small --policy.reencode_action_clouds=false \
+		--policy.optimizer_lr=2e-4 --policy.scheduler_warmup_steps=200 \
+		--dataset.repo_id=local/pseudo_demos_train --dataset.root=outputs/pseudo_demos_train \
+		--steps=$(TRAIN_STEPS) --batch_size=16 --num_workers=1 --log_freq=50 --save_freq=250 --seed=1000 \
+		--wandb.enable=false --output_dir=$(TRAIN_DIR))
+	$(VENV)/bin/lerobot-ip-loss-curve --run $(TRAIN_DIR) --train-root outputs/pseudo_demos_train \
+		--val-root outputs/pseudo_demos_val --samples 128 --out docs/training_curve.png
+
+# docs/results.md: every task, 20 episodes, N=2, for the three policies; then the K / N / L study on STUDY_TASKS.
+CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy
+SUITE = $(VENV)/bin/lerobot-ip-eval-suite --episodes 20 --out outputs/results/suite
+STUDY = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy instant_policy --policy-path $(CKPT) \
+	--tasks $(STUDY_TASKS) --episodes 10 --out outputs/results/study
+STUDY_TASKS ?= push_button,open_drawer
+results: results-suite results-study
+
+results-suite: $(INSTALLED)
+	OMP_NUM_THREADS=1 $(SUITE) --policy instant_policy --policy-path $(CKPT)
+	OMP_NUM_THREADS=1 $(SUITE) --policy demo_replay
+	OMP_NUM_THREADS=1 $(SUITE) --policy do_nothing
+	$(VENV)/bin/lerobot-ip-eval-table instant_policy=outputs/results/suite/runs/instant_policy \
+		demo_replay=outputs/results/suite/runs/demo_replay do_nothing=outputs/results/suite/runs/do_nothing \
+		--out docs/results_suite
+
+results-study: $(INSTALLED)
+	for K in 1 2 4 8; do $(STUDY) --policy-arg inference_steps=$$K --run-name K$$K || exit 1; done
+	for N in 1 3 4; do $(STUDY) --num-demos $$N --run-name N$$N || exit 1; done
+	for L in 2 5 15; do $(STUDY) --policy-arg num_waypoints=$$L --run-name L$$L || exit 1; done
+	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,K1 K2 K4 K8 N1 N3 N4 L2 L5 L15,$(run)=outputs/results/study/runs/$(run)) \
+		--out docs/results_study
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)

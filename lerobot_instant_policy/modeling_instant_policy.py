@@ -203,8 +203,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None, **kwargs) -> Tensor:
         """``(B, T, 8)`` absolute world-frame EE targets (xyz, quaternion xyzw with ``w ≥ 0``, gripper 1/0).
 
-        Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together).
-        ``generator`` seeds the DDIM noise.
+        Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), with
+        ``config.inference_steps`` (K, read at every call) DDIM steps; ``generator`` seeds the DDIM noise.
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
@@ -227,7 +227,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                     demos.scene_features.expand(count, -1, -1, -1, -1),
                 ),
             )
-            T_ee_actions, action_gripper = self.network.sample_actions(context, generator=generator)
+            T_ee_actions, action_gripper = self.network.sample_actions(
+                context, num_inference_steps=self.config.inference_steps, generator=generator
+            )
             chunk[rows] = vectors_from_poses(T_world_ee[rows][:, None] @ T_ee_actions, action_gripper)
         return chunk
 

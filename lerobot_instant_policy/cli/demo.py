@@ -16,6 +16,7 @@ from pathlib import Path
 from .eval_suite import SuiteSettings, run_task
 
 SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "checkpoints" / "instant_policy"
+DEFAULT_TASK = "open_drawer"
 
 
 def best_policy(checkpoint: Path) -> tuple[str, str | None, str]:
@@ -31,7 +32,7 @@ def best_policy(checkpoint: Path) -> tuple[str, str | None, str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lerobot-ip-demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--task", default="open_drawer")
+    parser.add_argument("--task", default=DEFAULT_TASK)
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--batch-size", type=int, default=2)
     parser.add_argument("--checkpoint", type=Path, default=SHIPPED_CHECKPOINT, help="instant_policy pretrained_model")

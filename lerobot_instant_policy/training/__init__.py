@@ -1,1 +1,2 @@
-"""Training loops that join data and model: the geometry encoder's occupancy pretraining."""
+"""Training loops and training measurements that join data and model: the geometry encoder's occupancy pretraining
+and the instant_policy training curve (loss per checkpoint on training and held-out pseudo-tasks)."""

@@ -1,0 +1,86 @@
+"""``lerobot-ip-action-error``: offline action error of the shipped checkpoint on a tiny held-out pseudo-task
+dataset."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from lerobot_instant_policy.cli import action_error as ae
+from lerobot_instant_policy.cli import demo
+from lerobot_instant_policy.cli.generate import main as generate_main
+from lerobot_instant_policy.training.loss_curve import LossCurveError
+
+SHIPPED = demo.SHIPPED_CHECKPOINT
+
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
+
+
+@pytest.fixture(scope="module")
+def held_out_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("action_error") / "val"
+    assert generate_main(["--out", str(root), "--repo-id", "local/val", "--num-tasks", "1", "--demos-per-task", "3",
+                          "--seed", "3", "--object-split", "held_out", "--workers", "1", "--no-progress"]) == 0
+    return root
+
+
+def _run(root, **overrides):
+    settings = dict(tasks=1, frames_per_task=1, seed=0, ks=[1, 4], ns=[2], ls=[10], untrained=False)
+    return ae.action_error(SHIPPED, root, **{**settings, **overrides})
+
+
+def test_action_error_structure_determinism_and_k(held_out_root):
+    first = _run(held_out_root)
+    again = _run(held_out_root)
+    rows = {row["K"]: row for row in first["settings"]}
+    assert [(row["K"], row["N"], row["L"]) for row in first["settings"]] == [(4, 2, 10), (1, 2, 10)]
+    assert first["tasks"] == 1 and first["frames"] == 1 and first["horizon_T"] == 8
+    for row in first["settings"] + [first["hold"]]:
+        for key in ("translation_mm", "translation_mm_first_step", "rotation_deg", "gripper_accuracy"):
+            assert math.isfinite(row[key]) and row[key] >= 0, (key, row)
+        assert 0 <= row["gripper_accuracy"] <= 1 and row["steps"] == 8
+    assert rows[1]["denoising_calls_per_prediction"] == [1] and rows[4]["denoising_calls_per_prediction"] == [4]
+    strip = [{k: v for k, v in row.items() if k != "ms_per_prediction"} for row in first["settings"]]
+    assert strip == [{k: v for k, v in row.items() if k != "ms_per_prediction"} for row in again["settings"]]
+    assert (rows[1]["translation_mm"], rows[1]["rotation_deg"]) != (rows[4]["translation_mm"], rows[4]["rotation_deg"])
+    json.dumps(first)
+
+
+def test_k_changes_the_prediction_itself(held_out_root):
+    policy = ae.InstantPolicyPolicy.from_pretrained(SHIPPED).eval()
+    (task,) = ae.load_held_out_tasks(held_out_root, 1, 1, policy.config.horizon, seed=0)
+    policy.set_demonstrations(task.demos[:2], num_waypoints=10)
+    one, calls_one = ae.predict_task(policy, task, 1)
+    four, calls_four = ae.predict_task(policy, task, 4)
+    four_again, _ = ae.predict_task(policy, task, 4)
+    assert (calls_one, calls_four) == ([1], [4])
+    assert not np.allclose(one[0], four[0]) and np.array_equal(four[0], four_again[0])
+    assert policy.config.inference_steps == 4 and policy.network.config.num_inference_steps == 4  # restored
+
+
+def test_chunk_errors_measure_known_offsets():
+    target = np.tile(np.array([0.5, 0.0, 0.2, 0.0, 0.0, 0.0, 1.0, 1.0]), (3, 1))
+    predicted = target.copy()
+    predicted[:, 0] += 0.01  # 10 mm
+    predicted[:, 3:7] = [0.0, 0.0, math.sin(math.radians(15)), math.cos(math.radians(15))]  # 30° about z
+    predicted[2, 7] = 0.0
+    errors = ae.chunk_errors(predicted, target)
+    assert np.allclose(errors["translation_mm"], 10.0) and np.allclose(errors["rotation_deg"], 30.0)
+    assert errors["gripper_correct"].tolist() == [True, True, False]
+    negated = target.copy()
+    negated[:, 3:7] *= -1
+    assert np.allclose(ae.chunk_errors(negated, target)["rotation_deg"], 0.0, atol=1e-5)
+
+
+def test_bad_inputs_give_clear_errors(held_out_root, tmp_path, capsys):
+    with pytest.raises(ae.ActionErrorError, match=r"N can be at most 2"):
+        _run(held_out_root, ns=[3])
+    with pytest.raises(LossCurveError, match="does not exist"):
+        _run(tmp_path / "missing")
+    with pytest.raises(ae.ActionErrorError, match="K"):
+        _run(held_out_root, ks=[0])
+    code = ae.main(["--policy-path", str(SHIPPED), "--root", str(tmp_path / "missing"), "--json"])
+    assert code == 2 and "does not exist" in capsys.readouterr().err
