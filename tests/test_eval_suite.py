@@ -71,8 +71,8 @@ def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
             "2",
             "--out",
             str(tmp_path),
-            "--checkpoint",
-            str(tmp_path),
+            "--policy",
+            "demo_replay",
         ]
     )
     output = capsys.readouterr().out

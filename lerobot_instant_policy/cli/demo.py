@@ -36,9 +36,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--batch-size", type=int, default=2)
     parser.add_argument("--checkpoint", type=Path, default=SHIPPED_CHECKPOINT, help="instant_policy pretrained_model")
+    parser.add_argument(
+        "--policy",
+        choices=("auto", "demo_replay", "do_nothing"),
+        default="auto",
+        help="auto: instant_policy from --checkpoint when there is one, else demo_replay",
+    )
     parser.add_argument("--out", type=Path, default=Path("outputs/demo"))
     args = parser.parse_args(argv)
-    policy, policy_path, reason = best_policy(args.checkpoint)
+    if args.policy == "auto":
+        policy, policy_path, reason = best_policy(args.checkpoint)
+    else:
+        policy, policy_path, reason = args.policy, None, "--policy"
     print(f"policy: {policy} ({reason})", flush=True)
     settings = SuiteSettings(
         policy=policy, policy_path=policy_path, out=args.out, episodes=args.episodes, batch_size=args.batch_size
