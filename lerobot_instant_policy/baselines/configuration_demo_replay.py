@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
-from lerobot.optim import AdamWConfig
 
 from ..geometry.registration import RegistrationConfig
 from ..policy_features import (
@@ -14,11 +13,12 @@ from ..policy_features import (
     contract_output_features,
     identity_normalization,
 )
+from .untrained import UntrainedPolicyConfigMixin
 
 
 @PreTrainedConfig.register_subclass("demo_replay")
 @dataclass
-class DemoReplayConfig(PreTrainedConfig):
+class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     """Replay a demonstration, moved to where the task objects are now.
 
     At the start of an episode the policy registers the first-frame point cloud of each of ``num_demos``
@@ -68,21 +68,3 @@ class DemoReplayConfig(PreTrainedConfig):
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)`` and writes ``action (8,)``."""
         check_contract_features("demo_replay", self.input_features, self.output_features)
-
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(lr=0.0)
-
-    def get_scheduler_preset(self) -> None:
-        return None
-
-    @property
-    def observation_delta_indices(self) -> None:
-        return None
-
-    @property
-    def action_delta_indices(self) -> None:
-        return None
-
-    @property
-    def reward_delta_indices(self) -> None:
-        return None

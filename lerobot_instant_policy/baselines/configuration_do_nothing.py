@@ -5,15 +5,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
-from lerobot.optim import AdamWConfig
 
 from ..data.lerobot_format import ACTION_KEY, STATE_KEY
 from ..policy_features import contract_input_features, contract_output_features, identity_normalization
+from .untrained import UntrainedPolicyConfigMixin
 
 
 @PreTrainedConfig.register_subclass("do_nothing")
 @dataclass
-class DoNothingConfig(PreTrainedConfig):
+class DoNothingConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     """The lower-bound baseline: command the current EE pose and gripper state, so the robot holds still.
 
     The action ``(8,)`` is ``observation.state (8,)`` unchanged (EE xyz, quaternion xyzw in the world frame, then
@@ -47,21 +47,3 @@ class DoNothingConfig(PreTrainedConfig):
             problems.append(f"output {ACTION_KEY!r} of shape (8,), got {tuple(action.shape) if action else 'nothing'}")
         if problems:
             raise ValueError("do_nothing needs " + "; ".join(problems))
-
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(lr=0.0)
-
-    def get_scheduler_preset(self) -> None:
-        return None
-
-    @property
-    def observation_delta_indices(self) -> None:
-        return None
-
-    @property
-    def action_delta_indices(self) -> None:
-        return None
-
-    @property
-    def reward_delta_indices(self) -> None:
-        return None
