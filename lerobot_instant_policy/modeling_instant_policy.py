@@ -32,13 +32,7 @@ from torch import Tensor
 
 from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
 from .data.context_bank import ContextBank
-from .data.demonstrations import (
-    Demonstration,
-    DemonstrationError,
-    demo_dataset_root,
-    load_demonstrations,
-    open_demo_dataset,
-)
+from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
 from .data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from .model.action_diffusion import invert_rigid, make_rigid
 from .model.geometry_encoder import encoder_preset
@@ -133,11 +127,12 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._dataset_meta = dataset_meta
         self._training_bank: ContextBank | None = None
         self._demo_contexts: dict[str, DemoContext] = {}
-        self._handed_in: dict[str, tuple[list[Demonstration], int]] = {}
+        self._demo_waypoints: dict[str, int] = {}  # L of the demonstrations handed in with set_demonstrations
         self._queue: deque[Tensor] = deque()
         self._last_gripper: Tensor | None = None
-        if config.demo_repo_id is not None:
-            open_demo_dataset(config.demo_repo_id, self._demo_root())  # fail at construction, not inside an episode
+        self._demonstrations = DemonstrationSource(
+            "instant_policy", config.demo_repo_id, config.demo_root, config.num_demos
+        )
 
     # ------------------------------------------------------------------ LeRobot interface
     def get_optim_params(self) -> list[Tensor]:
@@ -320,28 +315,17 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None:
         """Use ``demonstrations`` (N of them, all of one task) as that task's context, each reduced to
         ``num_waypoints`` (L; ``None``: the config's). Any N in 1…8 and L in 2…32 work without retraining."""
-        tasks = {demo.task for demo in demonstrations}
-        if len(tasks) != 1:
-            raise DemonstrationError(f"set_demonstrations takes demonstrations of one task, got tasks {sorted(tasks)}")
-        task = tasks.pop()
-        num_waypoints = num_waypoints or self.config.num_waypoints
-        self._demo_contexts[task] = self._make_demo_context(demonstrations, num_waypoints)
-        self._handed_in[task] = (list(demonstrations), num_waypoints)
+        task = self._demonstrations.hand_in(demonstrations)
+        self._demo_waypoints[task] = num_waypoints or self.config.num_waypoints
+        self._demo_contexts[task] = self._make_demo_context(demonstrations, self._demo_waypoints[task])
         self.reset()
 
     def demo_context(self, task: str) -> DemoContext:
         """The encoded demonstrations of ``task``: handed in, or read from ``demo_repo_id`` on first use."""
-        if task not in self._demo_contexts and task in self._handed_in:
-            self._demo_contexts[task] = self._make_demo_context(*self._handed_in[task])
         if task not in self._demo_contexts:
-            config = self.config
-            if config.demo_repo_id is None:
-                raise DemonstrationError(
-                    f"instant_policy has no demonstrations of task {task!r}: set --policy.demo_repo_id and "
-                    "--policy.demo_root to a LeRobotDataset of demonstrations, or call set_demonstrations()"
-                )
-            demonstrations = load_demonstrations(config.demo_repo_id, self._demo_root(), task, config.num_demos)
-            self._demo_contexts[task] = self._make_demo_context(demonstrations, config.num_waypoints)
+            demonstrations = self._demonstrations.get(task)
+            num_waypoints = self._demo_waypoints.get(task, self.config.num_waypoints)
+            self._demo_contexts[task] = self._make_demo_context(demonstrations, num_waypoints)
             logger.info("instant_policy: %d demonstrations of task %r encoded", len(demonstrations), task)
         return self._demo_contexts[task]
 
@@ -376,9 +360,6 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     def _device(self) -> torch.device:
         return next(self.parameters()).device
 
-    def _demo_root(self) -> Path:
-        return demo_dataset_root(self.config.demo_repo_id, self.config.demo_root)
-
     # ------------------------------------------------------------------ input checks
     def _observation(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
         """``points_world (B, P, 3)`` and ``state (B, 8)`` of ``batch``, checked: ``ValueError`` naming the problem."""
@@ -400,15 +381,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return points.float(), state.float()
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
-        tasks = batch.get("task")
-        if tasks is None:
-            if len(self._handed_in) == 1:
-                return [next(iter(self._handed_in))] * batch_size
-            raise KeyError("instant_policy needs the task string of every batch row in batch['task']")
-        tasks = [tasks] * batch_size if isinstance(tasks, str) else list(tasks)
-        if len(tasks) != batch_size:
-            raise ValueError(f"batch['task'] has {len(tasks)} entries for a batch of {batch_size}")
-        return tasks
+        handed_in = list(self._demo_waypoints)
+        only_task = handed_in[0] if len(handed_in) == 1 else None
+        return batch_task_names(batch.get("task"), batch_size, "instant_policy", only_task)
 
 
 def _hold_padded(actions: Tensor, is_pad: Tensor | None) -> Tensor:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -19,13 +18,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from scipy.spatial.transform import Rotation
 from torch import Tensor
 
-from ..data.demonstrations import (
-    Demonstration,
-    DemonstrationError,
-    demo_dataset_root,
-    load_demonstrations,
-    open_demo_dataset,
-)
+from ..data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
 from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 from ..geometry.registration import RegistrationResult, register_rigid
 from .configuration_demo_replay import DemoReplayConfig
@@ -55,34 +48,18 @@ class DemoReplayPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config: DemoReplayConfig = config
-        self._demonstrations: dict[str, list[Demonstration]] = {}
         self._plans: list[ReplayPlan] | None = None
         self._step = 0
-        if config.demo_repo_id is not None:
-            open_demo_dataset(config.demo_repo_id, self._demo_root())  # fail before the first episode, not in it
+        self._demonstrations = DemonstrationSource("demo_replay", config.demo_repo_id, config.demo_root, config.num_demos)
 
     def set_demonstrations(self, demonstrations: list[Demonstration]) -> None:
         """Use ``demonstrations`` (all of one task) for that task instead of reading ``demo_root``."""
-        tasks = {demo.task for demo in demonstrations}
-        if len(tasks) != 1:
-            raise DemonstrationError(f"set_demonstrations takes demonstrations of one task, got tasks {sorted(tasks)}")
-        self._demonstrations[tasks.pop()] = list(demonstrations)
+        self._demonstrations.hand_in(demonstrations)
         self.reset()
 
     def demonstrations(self, task: str) -> list[Demonstration]:
         """The demonstrations of ``task``: handed in, or read from the configured dataset on first use."""
-        if task not in self._demonstrations:
-            config = self.config
-            if config.demo_repo_id is None:
-                raise DemonstrationError(
-                    f"demo_replay has no demonstrations of task {task!r}: set --policy.demo_repo_id and "
-                    "--policy.demo_root to a LeRobotDataset of demonstrations, or call set_demonstrations()"
-                )
-            self._demonstrations[task] = load_demonstrations(config.demo_repo_id, self._demo_root(), task, config.num_demos)
-        return self._demonstrations[task]
-
-    def _demo_root(self) -> Path:
-        return demo_dataset_root(self.config.demo_repo_id, self.config.demo_root)
+        return self._demonstrations.get(task)
 
     @property
     def plans(self) -> list[ReplayPlan] | None:
@@ -138,15 +115,9 @@ class DemoReplayPolicy(PreTrainedPolicy):
             )
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
-        tasks = batch.get("task")
-        if tasks is None:
-            if len(self._demonstrations) == 1:
-                return [next(iter(self._demonstrations))] * batch_size
-            raise KeyError("demo_replay needs the task string of every batch element in batch['task']")
-        tasks = [tasks] * batch_size if isinstance(tasks, str) else list(tasks)
-        if len(tasks) != batch_size:
-            raise ValueError(f"batch['task'] has {len(tasks)} entries for a batch of {batch_size}")
-        return tasks
+        known = self._demonstrations.tasks
+        only_task = known[0] if len(known) == 1 else None
+        return batch_task_names(batch.get("task"), batch_size, "demo_replay", only_task)
 
     def _plan(self, task: str, cloud_now: np.ndarray) -> ReplayPlan:
         """Register every demonstration of ``task`` onto ``cloud_now (P, 3)``; plan the best one's actions."""

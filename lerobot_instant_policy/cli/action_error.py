@@ -40,10 +40,10 @@ import numpy as np
 import torch
 
 from ..configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_INFERENCE_STEPS, SUPPORTED_WAYPOINTS
-from ..data.demonstrations import Demonstration, DemonstrationError, open_demo_dataset
-from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY, read_episode
+from ..data.demonstrations import Demonstration, DemonstrationError, open_demo_dataset, read_demonstration
+from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 from ..modeling_instant_policy import InstantPolicyPolicy
-from ..training.loss_curve import Checkpoint, LossCurveError, check_pseudo_demo_root, checkpoint_config
+from ..training.loss_curve import LossCurveError, check_pseudo_demo_root, load_policy
 
 PROG = "lerobot-ip-action-error"
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
@@ -137,11 +137,7 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
     held_out = []
     for task_number, (task, episodes) in enumerate(sorted(usable.items(), key=lambda item: min(item[1]))[:num_tasks]):
         episodes = sorted(episodes)
-        demos = []
-        for episode_index in episodes:
-            episode = read_episode(dataset, episode_index)
-            demos.append(Demonstration(episode["points"].astype(np.float32), episode["state"].astype(np.float32),
-                                       episode["action"].astype(np.float32), task))
+        demos = [read_demonstration(dataset, episode_index, task) for episode_index in episodes]
         live = demos.pop()
         rng = np.random.default_rng([seed, task_number])
         count = min(frames_per_task, live.num_frames)
@@ -266,8 +262,8 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     _check_range("N (demonstrations)", ns + [default[1]], SUPPORTED_DEMOS)
     _check_range("L (waypoints)", ls + [default[2]], SUPPORTED_WAYPOINTS)
     start = time.perf_counter()
-    config = checkpoint_config(Checkpoint(step=0, path=Path(policy_path)))
-    config.device = device
+    policy = load_policy(policy_path, device)
+    config = policy.config
     held_out = load_held_out_tasks(root, tasks, frames_per_task, config.horizon, seed, repo_id)
     fewest = min(len(task.demos) for task in held_out)
     largest = max(ns + [default[1]])
@@ -279,8 +275,6 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     if held_out[0].frames[0].points.shape[0] != config.num_points:
         raise ActionErrorError(f"the dataset's clouds have {held_out[0].frames[0].points.shape[0]} points, the "
                                f"checkpoint expects {config.num_points}")
-    with contextlib.redirect_stdout(sys.stderr):  # LeRobot prints "Loading weights …": keep stdout pure JSON
-        policy = InstantPolicyPolicy.from_pretrained(policy_path, config=config).eval()
     settings = grid(ks, ns, ls, default)
     result = {
         "checkpoint": str(policy_path), "root": str(root), "device": device, "torch_threads": torch.get_num_threads(),

@@ -7,11 +7,8 @@ changes no timing.
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import resource
 import statistics
-import sys
 import time
 
 import numpy as np
@@ -61,12 +58,11 @@ def bench_inference(
     from ..modeling_instant_policy import InstantPolicyPolicy
 
     if policy_path is not None:
-        config = InstantPolicyConfig.from_pretrained(policy_path)
-        fields = {"num_demos": num_demos, "num_waypoints": num_waypoints, **overrides}
-        config = dataclasses.replace(config, device="cuda" if torch.cuda.is_available() else "cpu", **fields)
-        with contextlib.redirect_stdout(sys.stderr):  # LeRobot prints "Loading weights …": keep stdout pure JSON
-            policy = InstantPolicyPolicy.from_pretrained(policy_path, config=config)
-        preset = config.preset
+        from ..training.loss_curve import load_policy
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+        policy = load_policy(policy_path, device, num_demos=num_demos, num_waypoints=num_waypoints, **overrides)
+        config, preset = policy.config, policy.config.preset
     else:
         config = _config(
             preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4, **overrides

@@ -75,18 +75,19 @@ def load_demonstrations(repo_id: str, root: str | Path, task: str, num_demos: in
         raise DemonstrationError(
             f"asked for {num_demos} demonstrations of task {task!r} but the dataset at {dataset.root} has only {len(episodes)}"
         )
-    demonstrations = []
-    for episode_index in episodes[:num_demos]:
-        episode = read_episode(dataset, episode_index)
-        demonstrations.append(
-            Demonstration(
-                points_world=episode["points"].astype(np.float32),
-                state=episode["state"].astype(np.float32),
-                action=episode["action"].astype(np.float32),
-                task=task,
-            )
-        )
-    return demonstrations
+    return [read_demonstration(dataset, episode_index, task) for episode_index in episodes[:num_demos]]
+
+
+def read_demonstration(dataset, episode_index: int, task: str) -> Demonstration:
+    """Episode ``episode_index`` of the LeRobotDataset ``dataset`` (in the data contract) as a float32
+    ``Demonstration`` of ``task``."""
+    episode = read_episode(dataset, episode_index)
+    return Demonstration(
+        points_world=episode["points"].astype(np.float32),
+        state=episode["state"].astype(np.float32),
+        action=episode["action"].astype(np.float32),
+        task=task,
+    )
 
 
 def demo_dataset_root(repo_id: str, root: str | Path | None) -> Path:
@@ -110,6 +111,60 @@ def open_demo_dataset(repo_id: str, root: str | Path):
     dataset = LeRobotDataset(repo_id, root=root)
     check_contract_features(dataset.meta.features, root)
     return dataset
+
+
+class DemonstrationSource:
+    """Where a policy's evaluation demonstrations come from, per task: handed in from Python (``hand_in``), or read
+    once from the LeRobotDataset ``repo_id`` at ``root`` (offline; ``None``: LeRobot's local cache) and kept.
+
+    A configured dataset is opened at construction, so a wrong path or format fails before the first episode.
+    ``policy`` names the policy in error messages.
+    """
+
+    def __init__(self, policy: str, repo_id: str | None, root: str | Path | None, num_demos: int):
+        self.policy, self.repo_id, self.num_demos = policy, repo_id, num_demos
+        self.root = demo_dataset_root(repo_id, root) if repo_id is not None else None
+        self._by_task: dict[str, list[Demonstration]] = {}
+        if repo_id is not None:
+            open_demo_dataset(repo_id, self.root)
+
+    def hand_in(self, demonstrations: list[Demonstration]) -> str:
+        """Use ``demonstrations`` (all of one task) for their task from now on; returns the task."""
+        tasks = {demo.task for demo in demonstrations}
+        if len(tasks) != 1:
+            raise DemonstrationError(f"set_demonstrations takes demonstrations of one task, got tasks {sorted(tasks)}")
+        task = tasks.pop()
+        self._by_task[task] = list(demonstrations)
+        return task
+
+    def get(self, task: str) -> list[Demonstration]:
+        """The demonstrations of ``task``: handed in, or ``num_demos`` read from the dataset on first use."""
+        if task not in self._by_task:
+            if self.repo_id is None:
+                raise DemonstrationError(
+                    f"{self.policy} has no demonstrations of task {task!r}: set --policy.demo_repo_id and "
+                    "--policy.demo_root to a LeRobotDataset of demonstrations, or call set_demonstrations()"
+                )
+            self._by_task[task] = load_demonstrations(self.repo_id, self.root, task, self.num_demos)
+        return self._by_task[task]
+
+    @property
+    def tasks(self) -> list[str]:
+        """The tasks whose demonstrations were handed in or read so far."""
+        return list(self._by_task)
+
+
+def batch_task_names(tasks, batch_size: int, policy: str, only_task: str | None) -> list[str]:
+    """The task of every row of a batch: ``tasks`` is ``batch.get("task")`` (one string for all rows, or one per
+    row); when it is missing every row gets ``only_task``, and without one either a ``KeyError`` says what is needed."""
+    if tasks is None:
+        if only_task is not None:
+            return [only_task] * batch_size
+        raise KeyError(f"{policy} needs the task string of every batch row in batch['task']")
+    tasks = [tasks] * batch_size if isinstance(tasks, str) else list(tasks)
+    if len(tasks) != batch_size:
+        raise ValueError(f"batch['task'] has {len(tasks)} entries for a batch of {batch_size}")
+    return tasks
 
 
 def check_contract_features(features: dict[str, dict], root: str | Path) -> None:

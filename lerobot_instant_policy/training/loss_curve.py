@@ -15,10 +15,13 @@ only for the same sample settings and the same datasets, and :func:`draw_loss_cu
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import hashlib
 import json
 import math
 import os
+import sys
 from dataclasses import asdict, dataclass
 from functools import cached_property
 from pathlib import Path
@@ -126,16 +129,23 @@ def checkpoint_config(checkpoint: Checkpoint):
     return PreTrainedConfig.from_pretrained(checkpoint.path)
 
 
+def load_policy(path: str | Path, device: str = "cpu", **overrides) -> InstantPolicyPolicy:
+    """The ``instant_policy`` checkpoint at ``path`` (a ``pretrained_model`` directory) on ``device``, in eval mode,
+    with the config fields in ``overrides`` replaced. LeRobot's "Loading weights …" print goes to stderr, so CLIs
+    that print JSON keep stdout clean. ``LossCurveError`` when ``path`` holds another policy type."""
+    config = checkpoint_config(Checkpoint(step=0, path=Path(path)))
+    config = dataclasses.replace(config, device=device, **overrides)
+    with contextlib.redirect_stdout(sys.stderr):
+        return InstantPolicyPolicy.from_pretrained(path, config=config).eval()
+
+
 def load_checkpoint(checkpoint: Checkpoint, device: str = "cpu"):
     """``(policy, preprocessor)`` of a checkpoint on ``device``: the policy in eval mode, the preprocessor that
     ``lerobot-train`` saved beside it (its device step moved to ``device``)."""
     from lerobot.processor import PolicyProcessorPipeline
     from lerobot.processor.converters import batch_to_transition, transition_to_batch
 
-    config = checkpoint_config(checkpoint)
-    config.device = device
-    policy = InstantPolicyPolicy.from_pretrained(checkpoint.path, config=config)
-    policy.eval()
+    policy = load_policy(checkpoint.path, device)
     if not (checkpoint.path / PREPROCESSOR_FILE).is_file():
         raise LossCurveError(f"checkpoint {checkpoint.path} has no {PREPROCESSOR_FILE}")
     preprocessor = PolicyProcessorPipeline.from_pretrained(
