@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo pseudo-demos train-data train results results-suite results-study eval-suite test install clean
+.PHONY: demo pseudo-demos train-data train ladder results results-suite results-study eval-suite test install clean
 
 install: $(INSTALLED)
 
@@ -42,6 +42,28 @@ train: train-data
 		--wandb.enable=false --output_dir=$(TRAIN_DIR))
 	$(VENV)/bin/lerobot-ip-loss-curve --run $(TRAIN_DIR) --train-root outputs/pseudo_demos_train \
 		--val-root outputs/pseudo_demos_val --samples 128 --out docs/training_curve.png
+
+# Issue 11's CPU proof (docs/results.md, "In-context learning"): rung RUNG of the pseudo-task ladder (1: reach,
+# 2: reach_grip), held-out pseudo-tasks on held-out objects, LADDER_STEPS steps of batch 8 (about 30 min on 2 cores),
+# then the action error against holding still and the context gain. Generation and training resume where they stopped.
+RUNG ?= 1
+RUNG_NAME = $(if $(filter 1,$(RUNG)),rung1_reach,rung2_reach_grip)
+LADDER_STEPS ?= 2200
+LADDER_DIR = outputs/train/$(RUNG_NAME)
+ladder: $(INSTALLED)
+	test -d outputs/$(RUNG_NAME)_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
+		--config configs/generate/$(RUNG_NAME)_val.json $(if $(wildcard outputs/$(RUNG_NAME)_val/.shards),--resume,)
+	test -d outputs/$(RUNG_NAME)_train/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
+		--config configs/generate/$(RUNG_NAME)_train.json $(if $(wildcard outputs/$(RUNG_NAME)_train/.shards),--resume,)
+	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(LADDER_DIR)/checkpoints/last), \
+		--config_path=$(LADDER_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
+		--policy.type=instant_policy --policy.preset=small --policy.reencode_action_clouds=false \
+		--policy.max_demos=2 --policy.optimizer_lr=3e-4 --policy.scheduler_warmup_steps=100 \
+		--dataset.repo_id=local/$(RUNG_NAME)_train --dataset.root=outputs/$(RUNG_NAME)_train \
+		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=200 --seed=1 \
+		--wandb.enable=false --output_dir=$(LADDER_DIR))
+	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-action-error --policy-path $(LADDER_DIR)/checkpoints/last/pretrained_model \
+		--root outputs/$(RUNG_NAME)_val --tasks 12 --frames-per-task 4 --K 4 --N 2 --L 10 --json
 
 # docs/results.md: every task, 20 episodes, N=2, for the three policies; then the K / N / L study on STUDY_TASKS.
 CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy

@@ -92,8 +92,13 @@ class InstantPolicyConfig(PreTrainedConfig):
     encoder in its ``model.safetensors``, so the weights file is only read when a policy is built from scratch.
     ``reencode_action_clouds``: re-encode the live cloud in every action frame at every denoising step (the
     paper's choice) rather than moving the encoded scene nodes rigidly into the action frames.
+    ``dense_attention``: run σ's graph-transformer layers on the local graphs in a dense batched layout (the
+    same weights and outputs as the torch-geometric ``TransformerConv`` layers, which ``False`` runs instead).
 
-    Training: ``gripper_flip_probability`` of the current gripper state being flipped per sample; AdamW with
+    Training: ``gripper_flip_probability`` of the current gripper state (the input only, never the label) being
+    flipped per sample; the loss is the translation and rotation flow errors plus ``gripper_loss_weight`` times the
+    gripper's binary cross-entropy; N is drawn per batch and capped at the fewest other episodes a row's task has
+    (a demonstration never repeats in one context); AdamW with
     ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-4 for ``small``), linear warmup
     over ``scheduler_warmup_steps`` then cosine decay to zero, gradients clipped to ``optimizer_grad_clip_norm``.
 
@@ -125,8 +130,10 @@ class InstantPolicyConfig(PreTrainedConfig):
     encoder_weights: str | None = None
     pretrained_encoder: bool = True
     reencode_action_clouds: bool = True
+    dense_attention: bool = True
 
     gripper_flip_probability: float = 0.1
+    gripper_loss_weight: float = 0.1
     optimizer_lr: float | None = None
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
     optimizer_eps: float = 1e-8
@@ -193,6 +200,8 @@ class InstantPolicyConfig(PreTrainedConfig):
                 "gripper_keypoints need at least 3 points not on one line (an SE(3) update is fitted to them), got "
                 f"{self.gripper_keypoints}"
             )
+        if self.gripper_loss_weight < 0:
+            raise ValueError(f"gripper_loss_weight must be non-negative, got {self.gripper_loss_weight}")
         if not 0.0 <= self.gripper_flip_probability <= 1.0:
             raise ValueError(f"gripper_flip_probability must lie in [0, 1], got {self.gripper_flip_probability}")
         if self.optimizer_lr <= 0 or self.optimizer_grad_clip_norm <= 0 or self.scheduler_warmup_steps < 0:

@@ -89,6 +89,8 @@ def network_config(config: InstantPolicyConfig) -> InstantPolicyNetworkConfig:
         num_inference_steps=config.inference_steps,
         gripper_keypoints=tuple(tuple(point) for point in config.gripper_keypoints),
         reencode_action_clouds=config.reencode_action_clouds,
+        gripper_loss_weight=config.gripper_loss_weight,
+        dense_attention=config.dense_attention,
         max_num_demos=SUPPORTED_DEMOS[1],
         max_demo_length=SUPPORTED_WAYPOINTS[1],
     )
@@ -155,28 +157,20 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         Returns:
             The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats.
         """
-        points_world, state = self._observation(batch)
-        actions = batch.get(ACTION_KEY)
-        batch_size, horizon = len(state), self.config.horizon
-        if actions is None or tuple(actions.shape) != (batch_size, horizon, 8):
-            got = None if actions is None else tuple(actions.shape)
-            raise ValueError(f"{ACTION_KEY!r} must have shape (B, horizon, 8) = ({batch_size}, {horizon}, 8), got {got}")
+        points_world, state, T_world_ee, T_ee_actions, action_gripper = self.training_targets(batch)
+        batch_size = len(state)
         if "episode_index" not in batch:
             raise KeyError("instant_policy training needs 'episode_index' in the batch to draw context demonstrations")
-        actions = _hold_padded(actions, batch.get(f"{ACTION_KEY}_is_pad"))
-        if not torch.isfinite(actions).all():
-            raise ValueError(f"{ACTION_KEY!r} contains NaN or infinite values")
-
-        T_world_ee = poses_from_vectors(state)
-        T_ee_actions = invert_rigid(T_world_ee)[:, None] @ poses_from_vectors(actions)
         gripper = (state[:, 7] > 0.5).to(state.dtype)
         flip = torch.rand(batch_size, device=state.device) < self.config.gripper_flip_probability
         gripper = torch.where(flip, 1.0 - gripper, gripper)
 
         bank = self.training_bank()
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,)).item()))
-        num_demos = int(rng.integers(self.config.min_demos, self.config.max_demos + 1))
         episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
+        # N is capped at the fewest other episodes of a row's task: a demonstration never repeats in one context.
+        available = int(bank.other_episode_counts(episodes).min())
+        num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
         context_episodes = np.stack([bank.sample_context(int(episode), num_demos, rng) for episode in episodes])
         demo_geometry = bank.encoded(context_episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
         arrays = bank.gather(context_episodes)
@@ -190,9 +184,26 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             gripper,
             demo_geometry=demo_geometry,
         )
-        losses = self.network.training_loss(context, T_ee_actions, actions[..., 7].clamp(0.0, 1.0))
+        losses = self.network.training_loss(context, T_ee_actions, action_gripper)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
         return losses["loss"], {**parts, "num_demos": float(num_demos)}
+
+    def training_targets(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """The checked inputs and targets of a training batch (see :meth:`forward`): ``points_world (B, P, 3)``,
+        ``state (B, 8)``, ``T_world_ee (B, 4, 4)``, the action poses in the current EE frame ``T_ee_actions
+        (B, T, 4, 4)`` and the gripper commands ``action_gripper (B, T)`` in [0, 1] (padded actions held)."""
+        points_world, state = self._observation(batch)
+        actions = batch.get(ACTION_KEY)
+        batch_size, horizon = len(state), self.config.horizon
+        if actions is None or tuple(actions.shape) != (batch_size, horizon, 8):
+            got = None if actions is None else tuple(actions.shape)
+            raise ValueError(f"{ACTION_KEY!r} must have shape (B, horizon, 8) = ({batch_size}, {horizon}, 8), got {got}")
+        actions = _hold_padded(actions, batch.get(f"{ACTION_KEY}_is_pad"))
+        if not torch.isfinite(actions).all():
+            raise ValueError(f"{ACTION_KEY!r} contains NaN or infinite values")
+        T_world_ee = poses_from_vectors(state)
+        T_ee_actions = invert_rigid(T_world_ee)[:, None] @ poses_from_vectors(actions)
+        return points_world, state, T_world_ee, T_ee_actions, actions[..., 7].clamp(0.0, 1.0)
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None, **kwargs) -> Tensor:

@@ -22,13 +22,13 @@ pytestmark = pytest.mark.usefixtures("single_torch_thread")
 @pytest.fixture(scope="module")
 def held_out_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("action_error") / "val"
-    assert generate_main(["--out", str(root), "--repo-id", "local/val", "--num-tasks", "1", "--demos-per-task", "3",
+    assert generate_main(["--out", str(root), "--repo-id", "local/val", "--num-tasks", "2", "--demos-per-task", "3",
                           "--seed", "3", "--object-split", "held_out", "--workers", "1", "--no-progress"]) == 0
     return root
 
 
 def _run(root, **overrides):
-    settings = dict(tasks=1, frames_per_task=1, seed=0, ks=[1, 4], ns=[2], ls=[10], untrained=False)
+    settings = dict(tasks=2, frames_per_task=1, seed=0, ks=[1, 4], ns=[2], ls=[10], untrained=False)
     return ae.action_error(SHIPPED, root, **{**settings, **overrides})
 
 
@@ -37,16 +37,36 @@ def test_action_error_structure_determinism_and_k(held_out_root):
     again = _run(held_out_root)
     rows = {row["K"]: row for row in first["settings"]}
     assert [(row["K"], row["N"], row["L"]) for row in first["settings"]] == [(4, 2, 10), (1, 2, 10)]
-    assert first["tasks"] == 1 and first["frames"] == 1 and first["horizon_T"] == 8
-    for row in first["settings"] + [first["hold"]]:
+    assert first["tasks"] == 2 and first["frames"] == 2 and first["horizon_T"] == 8
+    for row in first["settings"] + [first["hold"], first["swap"]]:
         for key in ("translation_mm", "translation_mm_first_step", "rotation_deg", "gripper_accuracy"):
             assert math.isfinite(row[key]) and row[key] >= 0, (key, row)
-        assert 0 <= row["gripper_accuracy"] <= 1 and row["steps"] == 8
+        assert 0 <= row["gripper_accuracy"] <= 1 and row["steps"] == 8 * row["frames"]
     assert rows[1]["denoising_calls_per_prediction"] == [1] and rows[4]["denoising_calls_per_prediction"] == [4]
     strip = [{k: v for k, v in row.items() if k != "ms_per_prediction"} for row in first["settings"]]
     assert strip == [{k: v for k, v in row.items() if k != "ms_per_prediction"} for row in again["settings"]]
     assert (rows[1]["translation_mm"], rows[1]["rotation_deg"]) != (rows[4]["translation_mm"], rows[4]["rotation_deg"])
+    # the swap runs the same frames and noise with the other task's demonstrations: a different prediction
+    assert first["swap"]["frames"] == 2
+    assert (first["swap"]["translation_mm"], first["swap"]["rotation_deg"]) != (rows[4]["translation_mm"],
+                                                                              rows[4]["rotation_deg"])
+    assert first["context_gain"]["translation"] == round(first["swap"]["translation_mm"] / rows[4]["translation_mm"], 3)
     json.dumps(first)
+
+
+def test_context_swap_gives_each_task_the_next_tasks_demonstrations(held_out_root):
+    tasks = ae.load_held_out_tasks(held_out_root, 2, 1, 8, seed=0)
+    swapped = ae.swapped_context(tasks)
+    for index, held in enumerate(swapped):
+        other = tasks[1 - index]
+        assert held.task == tasks[index].task and held.frames is tasks[index].frames
+        assert all(demo.task == held.task for demo in held.demos)
+        assert all(np.array_equal(a.state, b.state) for a, b in zip(held.demos, other.demos, strict=True))
+    with pytest.raises(ae.ActionErrorError, match="at least 2 pseudo-tasks"):
+        ae.swapped_context(tasks[:1])
+    gain = ae.context_gain({"translation_mm": 10.0, "rotation_deg": 2.0, "gripper_accuracy": 0.9},
+                           {"translation_mm": 25.0, "rotation_deg": 2.0, "gripper_accuracy": 0.6})
+    assert gain == {"translation": 2.5, "rotation": 1.0, "gripper": 4.0}
 
 
 def test_k_changes_the_prediction_itself(held_out_root):

@@ -123,12 +123,12 @@ def test_sample_context_draws_other_episodes_of_the_same_task(pseudo_bank):
         assert context.shape == (2,) and set(context.tolist()) == same_task  # 2 others: all of them, no repeats
         single = pseudo_bank.sample_context(episode, 1, rng)
         assert single[0] in same_task
-    # N above the other episodes of the task: every other episode, then repeats; N is kept
-    context = pseudo_bank.sample_context(0, 5, rng)
-    others = set(pseudo_bank.episodes_of_task(pseudo_bank.episode(0).task).tolist()) - {0}
-    assert context.shape == (5,) and set(context.tolist()) == others
-    again = pseudo_bank.sample_context(0, 5, np.random.default_rng(7))
-    np.testing.assert_array_equal(again, pseudo_bank.sample_context(0, 5, np.random.default_rng(7)))
+    # a demonstration never repeats: N above the other episodes of the task is refused, and the bank says the cap
+    assert pseudo_bank.other_episode_counts(np.array([[0, 5]])).tolist() == [[2, 2]]
+    with pytest.raises(DemonstrationError, match=r"has 2 episodes besides episode 0 .* N=3 needs 3"):
+        pseudo_bank.sample_context(0, 3, rng)
+    again = pseudo_bank.sample_context(0, 2, np.random.default_rng(7))
+    np.testing.assert_array_equal(again, pseudo_bank.sample_context(0, 2, np.random.default_rng(7)))
     with pytest.raises(DemonstrationError, match="num_demos must be at least 1"):
         pseudo_bank.sample_context(0, 0, rng)
     with pytest.raises(DemonstrationError, match=r"episode 99 is not in the context bank \(6 episodes\)"):
@@ -196,7 +196,7 @@ def test_from_demonstrations_in_python(synthetic_root):
 def test_a_task_with_a_single_episode_has_no_context(synthetic_root):
     bank = ContextBank.from_dataset(SYNTHETIC_REPO, synthetic_root, 6)
     assert bank.episodes_of_task("push").tolist() == [2]
-    with pytest.raises(DemonstrationError, match="task 'push' has only episode 2 in the context bank"):
+    with pytest.raises(DemonstrationError, match="task 'push' has 0 episodes besides episode 2 in the context bank"):
         bank.sample_context(2, 1, np.random.default_rng(0))
 
 

@@ -207,3 +207,28 @@ def test_unwritable_output_fails_clearly(tmp_path, capsys):
     assert _generate(blocker / "out", "--num-tasks", "1") == 2
     assert "cannot write" in capsys.readouterr().err
     assert blocker.read_text() == "not a directory"
+
+
+def test_a_ladder_rung_with_object_groups(tmp_path):
+    """``--family reach --tasks-per-object-group 2``: tasks of a group share their objects but not their motion, and
+    every demonstration of a task ends at the task's pose relative to its anchor object."""
+    from lerobot.datasets import LeRobotDataset
+
+    out = tmp_path / "reach"
+    assert _generate(out, "--family", "reach", "--tasks-per-object-group", "2", "--num-tasks", "3",
+                     "--demos-per-task", "2", "--seed", "4") == 0
+    tasks = [json.loads(line) for line in (out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()]
+    scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
+    assert [task["template"] for task in tasks] == ["reach"] * 3
+    assert tasks[0]["object_ids"] == tasks[1]["object_ids"]
+    assert tasks[0]["waypoints"] != tasks[1]["waypoints"]
+    dataset = LeRobotDataset(REPO_ID, root=out)
+    by_task = {task["task"]: task for task in tasks}
+    for index, scene in enumerate(scenes):
+        episode = read_episode(dataset, index)
+        state = episode["state"]
+        assert set(np.unique(episode["action"][:, 7]).tolist()) == {1.0}  # reach: the gripper is never closed
+        (waypoint,) = by_task[scene["task"]]["waypoints"]
+        T_world_anchor = np.array(scene["T_world_objects"])[waypoint["anchor"]]
+        T_anchor_ee = invert(T_world_anchor) @ pose_from_pos_quat(state[-1, :3].astype(float), state[-1, 3:7].astype(float))
+        np.testing.assert_allclose(T_anchor_ee, np.array(waypoint["T_anchor_ee"]), atol=2e-4)

@@ -219,8 +219,12 @@ def test_moving_the_whole_world_leaves_the_relative_actions_unchanged(reencode):
 
 
 def _count_calls(module: torch.nn.Module) -> list:
+    """Calls of ``module`` (its forward, or the dense path of a graph transformer)."""
     calls = []
     module.register_forward_hook(lambda *_: calls.append(1))
+    if hasattr(module, "forward_dense"):
+        dense = module.forward_dense
+        module.forward_dense = lambda *args, **kwargs: calls.append(1) or dense(*args, **kwargs)
     return calls
 
 
@@ -331,3 +335,23 @@ def test_bad_action_inputs_and_step_counts_raise():
         network.training_loss(context, batch["T_ee_actions"][:, :4], batch["action_gripper"])
     with pytest.raises(ValueError, match="num_inference_steps"):
         network.sample_actions(context, num_inference_steps=0)
+
+
+def test_loss_weighs_a_gripper_cross_entropy_and_sampling_reads_its_logit():
+    """``loss = translation + rotation + w · BCE(gripper logit)``; at sampling the logit's sign decides the command."""
+    network = _network(gripper_loss_weight=0.25)
+    batch = _batch()
+    context = _context(network, batch)
+    losses = network.training_loss(context, batch["T_ee_actions"], batch["action_gripper"],
+                                   generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(losses["loss"], losses["translation"] + losses["rotation"] + 0.25 * losses["gripper"])
+    last = network.gripper_head[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        for bias, expected in ((20.0, 1.0), (-20.0, 0.0)):
+            last.bias.fill_(bias)
+            _, gripper = network.sample_actions(context, torch.Generator().manual_seed(0))
+            assert torch.all(gripper == expected)
+            confident = network.training_loss(context, batch["T_ee_actions"], torch.full_like(batch["action_gripper"],
+                                                                                              expected))
+            assert float(confident["gripper"]) < 1e-6  # a confident right logit costs nothing

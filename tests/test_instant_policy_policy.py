@@ -372,3 +372,18 @@ def test_push_to_hub_uploads_a_loadable_policy(policy, tmp_path, monkeypatch):
     assert {"config.json", "model.safetensors"} <= set(uploads[0]["files"])
     loaded = InstantPolicyPolicy.from_pretrained(uploads[0]["copy"])
     assert torch.equal(_predict(policy), _predict(loaded))
+
+
+def test_n_is_capped_so_that_no_demonstration_repeats(tiny_dataset, monkeypatch):
+    """The tiny task has 3 episodes, so a frame has 2 others: N drawn up to 5 becomes at most 2, never a repeat."""
+    policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", min_demos=4, max_demos=5),
+                                 dataset_meta=tiny_dataset.meta)
+    drawn = []
+    sample_context = policy.training_bank().sample_context
+    monkeypatch.setattr(policy.training_bank(), "sample_context",
+                        lambda episode, n, rng: drawn.append(sample_context(episode, n, rng)) or drawn[-1])
+    batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=4, shuffle=False)))
+    _, parts = policy.forward(batch)
+    assert parts["num_demos"] == 2.0
+    assert all(len(set(context.tolist())) == len(context) == 2 for context in drawn)
+    assert all(int(episode) not in context for episode, context in zip(batch["episode_index"], drawn, strict=True))

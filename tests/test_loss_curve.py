@@ -28,6 +28,7 @@ from lerobot_instant_policy.training.loss_curve import (
     find_checkpoints,
     load_checkpoint,
     load_evaluation_set,
+    prior_only_loss,
 )
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
@@ -41,7 +42,7 @@ def run(tmp_path_factory):
     common = ["--demos-per-task", "2", "--workers", "1", "--no-progress"]
     assert generate_main(["--out", str(base / "train"), "--repo-id", "local/train", "--num-tasks", "2", "--seed", "0",
                           *common]) == 0
-    assert generate_main(["--out", str(base / "val"), "--repo-id", "local/val", "--num-tasks", "1", "--seed", "1",
+    assert generate_main(["--out", str(base / "val"), "--repo-id", "local/val", "--num-tasks", "2", "--seed", "1",
                           "--object-split", "held_out", *common]) == 0
     run_train(["--policy.type=instant_policy", "--policy.preset=small", "--dataset.repo_id=local/train",
                f"--dataset.root={base / 'train'}", "--steps=2", "--batch_size=2", "--policy.device=cpu",
@@ -70,11 +71,22 @@ def test_checkpoint_loss_is_deterministic_and_compares_checkpoints_on_the_same_d
     again = evaluate_loss(first, preprocessor, evaluation, batch_size=4, seed=0)
     assert once == again and once.samples == 8
     assert torch.equal(torch.get_rng_state(), rng_state), "evaluation must not move the caller's RNG"
-    assert once.loss == pytest.approx(once.translation + once.rotation + once.gripper, rel=1e-5)
+    weight = first.config.gripper_loss_weight
+    assert once.loss == pytest.approx(once.translation + once.rotation + weight * once.gripper, rel=1e-5)
     assert min(once.translation, once.rotation, once.gripper) > 0
     # other weights or other noise give other numbers
     assert evaluate_loss(second, preprocessor, evaluation, batch_size=4, seed=0).loss != once.loss
     assert evaluate_loss(first, preprocessor, evaluation, batch_size=4, seed=1).loss != once.loss
+    # the context swap: the same frames and draws with another task's demonstrations give another loss
+    val = load_evaluation_set("val", base / "val", first.config, samples=8, seed=0)
+    own = evaluate_loss(first, preprocessor, val, batch_size=4, seed=0)
+    swapped = evaluate_loss(first, preprocessor, val, batch_size=4, seed=0, swap_context=True)
+    assert swapped.samples == own.samples == 8 and swapped.translation != own.translation
+    assert evaluate_loss(first, preprocessor, val, batch_size=4, seed=0) == own  # the swap left the bank as it was
+    # the prior-only level is a property of the data and the diffusion, not of the weights
+    prior = prior_only_loss(first, preprocessor, val, batch_size=4, seed=0)
+    assert prior == prior_only_loss(second, preprocessor, val, batch_size=4, seed=0)
+    assert prior["samples"] == 8 and prior["translation"] > 0 and prior["rotation"] > 0
     # the same seed draws the same frames
     assert np.array_equal(evaluation.indices, load_evaluation_set("t", base / "train", first.config, 8, 0).indices)
 
@@ -84,13 +96,15 @@ def test_cli_draws_the_png_and_only_evaluates_new_checkpoints(run, capsys):
     code, summary, err = curve_cli(base, run_dir, capsys)
     assert code == 0, err
     assert summary["evaluated"] == [1, 2] and summary["reused"] == []
-    assert summary["datasets"]["train"]["episodes"] == 4 and summary["datasets"]["val"]["tasks"] == 1
+    assert summary["datasets"]["train"]["episodes"] == 4 and summary["datasets"]["val"]["tasks"] == 2
+    assert summary["prior_only_val"]["translation"] > 0
+    assert all(point["context_gain_translation"] > 0 for point in summary["curve"])
     picture = matplotlib.image.imread(summary["png"])
     assert picture.ndim == 3 and picture.shape[0] > 300 and picture.shape[1] > 600
     stored = json.loads((base / "curve.json").read_text())
     assert [entry["step"] for entry in stored["checkpoints"]] == [1, 2]
     for entry in stored["checkpoints"]:
-        for name in ("train", "val"):
+        for name in ("train", "val", "val_swap"):
             assert entry[name]["samples"] == 8 and np.isfinite(entry[name]["loss"]) and entry[name]["loss"] > 0
 
     code, cached, _ = curve_cli(base, run_dir, capsys)

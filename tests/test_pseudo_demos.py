@@ -15,7 +15,13 @@ from lerobot_instant_policy.data.pseudo_demos import (
     hold_signature,
     make_demo,
 )
-from lerobot_instant_policy.data.pseudo_tasks import GRASP_REACH, INTERPOLATIONS, TEMPLATES, sample_pseudo_task
+from lerobot_instant_policy.data.pseudo_tasks import (
+    FAMILIES,
+    GRASP_REACH,
+    INTERPOLATIONS,
+    TEMPLATES,
+    sample_pseudo_task,
+)
 from lerobot_instant_policy.data.rendering import PointCloudRenderer
 from lerobot_instant_policy.data.trajectory import MAX_STEP_ROTATION, MAX_STEP_TRANSLATION
 from lerobot_instant_policy.geometry.se3 import (
@@ -168,6 +174,34 @@ def test_sample_pseudo_task_biased_fraction_and_determinism(objects):
     for a, b in zip(first.waypoints, second.waypoints, strict=True):
         np.testing.assert_array_equal(a.T_anchor_ee, b.T_anchor_ee)
         assert (a.anchor, a.gripper_open, a.interpolation) == (b.anchor, b.gripper_open, b.interpolation)
+
+
+def test_task_families_of_the_ladder(objects):
+    for seed in range(40):
+        reach = sample_pseudo_task("r", objects, np.random.default_rng(seed), family="reach")
+        assert reach.template == "reach" and len(reach.waypoints) == 1 and reach.gripper_changes() == 0
+        assert reach.waypoints[0].T_anchor_ee[2, 3] >= 0.03  # above the table
+        grip = sample_pseudo_task("g", objects, np.random.default_rng(seed), family="reach_grip")
+        closing, retreat = grip.waypoints
+        assert grip.gripper_changes() == 1 and not closing.gripper_open and not retreat.gripper_open
+        assert closing.anchor == retreat.anchor
+        model = objects[closing.anchor]
+        assert np.linalg.norm(model.surface_points - closing.T_anchor_ee[:3, 3], axis=1).min() <= GRASP_REACH
+        lift = retreat.T_anchor_ee[:3, 3] - closing.T_anchor_ee[:3, 3]
+        assert 0.05 <= lift[2] <= 0.15 and np.linalg.norm(lift[:2]) <= 0.08 + 1e-9
+        place = sample_pseudo_task("p", objects, np.random.default_rng(seed), family="grasp_place")
+        assert place.template == "grasp_place" and len(place.waypoints) == 6 and place.gripper_changes() == 2
+    # the motion is drawn per task: on the same objects, tasks differ in anchor or pose
+    targets = {
+        (task.waypoints[0].anchor, *np.round(task.waypoints[0].T_anchor_ee[:3, 3], 4))
+        for task in (sample_pseudo_task("r", objects, np.random.default_rng(seed), family="reach") for seed in range(20))
+    }
+    assert len(targets) == 20
+    assert {task.waypoints[0].anchor for task in
+            (sample_pseudo_task("r", objects, np.random.default_rng(s), family="reach") for s in range(20))} == {0, 1}
+    assert FAMILIES[-1] == "full"
+    with pytest.raises(ValueError, match="unknown pseudo-task family 'climb'"):
+        sample_pseudo_task("x", objects, np.random.default_rng(0), family="climb")
 
 
 # --------------------------------------------------------------------------------------- demonstrations

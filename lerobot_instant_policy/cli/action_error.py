@@ -17,9 +17,12 @@ episodes of one pseudo-task share its ``task`` string), in order of their first 
 Errors, averaged over all frames and all T horizon steps: translation ``‖p̂ − p‖`` in millimetres (world frame),
 rotation the geodesic angle between the predicted and true EE orientations in degrees, gripper accuracy the fraction
 of steps whose open/closed command (threshold 0.5) is right. Settings vary one parameter at a time around the
-defaults K=4, N=2, L=10 (the defaults row appears once). Two references at the default setting: the same config
+defaults K=4, N=2, L=10 (the defaults row appears once). Three references at the default setting: the same config
 freshly initialised (``torch.manual_seed(0)``; its frozen geometry encoder is the config's pretrained one, as in a
-checkpoint before training) and "hold": predicting the current state for every horizon step (no model).
+checkpoint before training), "hold": predicting the current state for every horizon step (no model), and the
+**context swap**: the same checkpoint, frames and noise, with the demonstrations of the *next* pseudo-task (in the
+order above, the last task taking the first's) relabelled as this task's. **Context gain** = swap error / own error,
+for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores its demonstrations.
 
 K is the policy's ``config.inference_steps``, which ``predict_action_chunk`` reads at every call; every prediction
 counts the network's denoising calls and the run fails if they are not K.
@@ -233,6 +236,29 @@ def hold_reference(tasks: list[HeldOutTask]) -> dict:
     return summarise(errors)
 
 
+def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
+    """Each task with the next task's demonstrations (the last with the first's), relabelled as its own."""
+    if len(tasks) < 2:
+        raise ActionErrorError("the context swap needs at least 2 pseudo-tasks")
+    return [
+        dataclasses.replace(held, demos=[dataclasses.replace(demo, task=held.task)
+                                         for demo in tasks[(index + 1) % len(tasks)].demos])
+        for index, held in enumerate(tasks)
+    ]
+
+
+def context_gain(own: dict, swap: dict) -> dict:
+    """``swap / own`` of the translation and rotation errors and of the gripper error (1 − accuracy)."""
+    def ratio(swap_error: float, own_error: float) -> float | None:
+        return round(swap_error / own_error, 3) if own_error > 0 else None
+
+    return {
+        "translation": ratio(swap["translation_mm"], own["translation_mm"]),
+        "rotation": ratio(swap["rotation_deg"], own["rotation_deg"]),
+        "gripper": ratio(1.0 - swap["gripper_accuracy"], 1.0 - own["gripper_accuracy"]),
+    }
+
+
 def grid(ks: list[int], ns: list[int], ls: list[int], default: tuple[int, int, int]) -> list[tuple[int, int, int]]:
     """(K, N, L) settings varying one parameter at a time around ``default`` (which appears once, first)."""
     k0, n0, l0 = default
@@ -253,8 +279,8 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
                  repo_id: str | None = None, device: str = "cpu") -> dict:
     """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` (module docstring).
 
-    Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained`` and ``hold``
-    references at the default setting, the dataset and sample description and the wall time. Raises
+    Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained``, ``hold`` and
+    ``swap`` references at the default setting, ``context_gain`` (swap / own error at the default setting), the dataset and sample description and the wall time. Raises
     ``ActionErrorError`` / ``LossCurveError`` / ``DemonstrationError`` on bad input (N ≥ demos per task, …).
     """
     ks, ns, ls, default = list(ks), list(ns), list(ls), tuple(default)
@@ -284,6 +310,8 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
         "default": dict(zip("KNL", default)),
         "settings": evaluate_settings(policy, held_out, settings),
     }
+    result["swap"] = evaluate_settings(policy, swapped_context(held_out), [default])[0]
+    result["context_gain"] = context_gain(result["settings"][0], result["swap"])
     if untrained:
         with torch.random.fork_rng(devices=[]), contextlib.redirect_stdout(sys.stderr):  # caller's RNG untouched
             torch.manual_seed(0)

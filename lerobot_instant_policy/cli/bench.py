@@ -6,7 +6,9 @@
 ``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
 ``lerobot-ip-bench inference --preset small|paper``: ``instant_policy`` milliseconds per control step (K=4, N=2,
 L=10, T=8, 2048 points, batch 1, demo context cached). ``lerobot-ip-bench train-step --preset small|paper``:
-training samples per second and peak RSS.
+training samples per second and peak RSS. Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
+the torch-geometric reference layers) and ``--compare-dense-attention``, which times both in alternation in one run
+and reports their ratio.
 """
 
 from __future__ import annotations
@@ -92,6 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     inference.add_argument(
         "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
     )
+    inference.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
+    inference.add_argument("--compare-dense-attention", action="store_true",
+                        help="time dense and reference attention in alternation and report the ratio")
     inference.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     train_step = commands.add_parser("train-step", help="instant_policy training samples per second, peak memory")
     train_step.add_argument("--preset", choices=["small", "paper"], default="small")
@@ -100,20 +105,31 @@ def main(argv: list[str] | None = None) -> int:
     train_step.add_argument(
         "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
     )
+    train_step.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
+    train_step.add_argument("--compare-dense-attention", action="store_true",
+                        help="time dense and reference attention in alternation and report the ratio")
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
     if args.command == "inference":
         if args.repeats <= 0:
             parser.error("--repeats must be positive")
-        from .bench_policy import bench_inference
+        from .bench_policy import bench_inference, compare_dense_attention
 
-        result = bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path, **_reencode(args))
+        def run(**dense):
+            return bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path,
+                                   **_overrides(args), **dense)
+
+        result = compare_dense_attention(run, "ms_per_control_step") if args.compare_dense_attention else run()
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size) <= 0:
             parser.error("--repeats and --batch-size must be positive")
-        from .bench_policy import bench_train_step
+        from .bench_policy import bench_train_step, compare_dense_attention
 
-        result = bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_reencode(args))
+        def run(**dense):
+            return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_overrides(args),
+                                    **dense)
+
+        result = compare_dense_attention(run, "samples_per_s") if args.compare_dense_attention else run()
     elif args.command == "env":
         if min(args.steps, args.repeats) <= 0:
             parser.error("--steps and --repeats must be positive")
@@ -134,10 +150,14 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _reencode(args) -> dict:
-    if args.reencode_action_clouds is None:
-        return {}
-    return {"reencode_action_clouds": args.reencode_action_clouds == "true"}
+def _overrides(args) -> dict:
+    """Config overrides from ``--reencode-action-clouds`` and ``--dense-attention`` (the latter not when comparing)."""
+    overrides = {}
+    if args.reencode_action_clouds is not None:
+        overrides["reencode_action_clouds"] = args.reencode_action_clouds == "true"
+    if args.dense_attention is not None and not args.compare_dense_attention:
+        overrides["dense_attention"] = args.dense_attention == "true"
+    return overrides
 
 
 if __name__ == "__main__":

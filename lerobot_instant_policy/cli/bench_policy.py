@@ -10,6 +10,7 @@ from __future__ import annotations
 import resource
 import statistics
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -88,7 +89,7 @@ def bench_inference(
     return {
         "benchmark": "inference", "preset": preset, "checkpoint": policy_path, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
+        "dense_attention": config.dense_attention, "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
         "points": config.num_points, "batch": 1,
         "parameters": sum(parameter.numel() for parameter in policy.parameters()),
         "ms_per_control_step": round(1000 * statistics.median(times), 1),
@@ -143,8 +144,28 @@ def bench_train_step(
     return {
         "benchmark": "train-step", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "batch": batch_size, "N": num_demos, "L": L, "T": T, "points": P,
+        "dense_attention": config.dense_attention, "batch": batch_size, "N": num_demos, "L": L, "T": T, "points": P,
         "samples_per_s": round(batch_size / statistics.median(times), 2),
         "runs_s_per_step": [round(value, 3) for value in times],
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    }
+
+
+def compare_dense_attention(run: Callable[..., dict], figure: str, rounds: int = 3) -> dict:
+    """``run(dense_attention=…)`` for the dense and the reference attention in alternation, ``rounds`` times each;
+    the medians of ``figure`` and their ratio (dense / reference) measured in this one run."""
+    results = {True: [], False: []}
+    for _ in range(rounds):
+        for dense in (True, False):
+            results[dense].append(run(dense_attention=dense))
+    dense_value = statistics.median(result[figure] for result in results[True])
+    reference_value = statistics.median(result[figure] for result in results[False])
+    return {
+        **{key: value for key, value in results[True][0].items()
+           if key not in (figure, "dense_attention") and not key.startswith("runs")},
+        "figure": figure, "rounds": rounds,
+        "dense": dense_value, "reference": reference_value,
+        "dense_over_reference": round(dense_value / reference_value, 3),
+        "runs_dense": [result[figure] for result in results[True]],
+        "runs_reference": [result[figure] for result in results[False]],
     }

@@ -8,6 +8,7 @@ import sys
 
 from ..config_io import load_config
 from ..data.generation import GenerationConfig, generate_dataset
+from ..data.pseudo_tasks import FAMILIES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,6 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks-per-shard", type=int, help="tasks per resumable shard")
     parser.add_argument("--object-split", choices=["train", "held_out", "all"], help="object library split to draw from")
     parser.add_argument("--objects", nargs="+", metavar="ID", help="draw objects only from these ids (e.g. pb/mug urdf/001)")
+    parser.add_argument("--family", choices=list(FAMILIES), help="rung of the pseudo-task ladder (default: full)")
+    parser.add_argument("--tasks-per-object-group", type=int, help="consecutive tasks that share their two objects")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted generation in --out")
     parser.add_argument("--keep-shards", action="store_true", help="keep the per-shard datasets after merging")
@@ -45,6 +48,8 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
         "tasks_per_shard": args.tasks_per_shard,
         "object_split": args.object_split,
         "object_pool": args.objects,
+        "family": args.family,
+        "tasks_per_object_group": args.tasks_per_object_group,
     }
     return dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
 

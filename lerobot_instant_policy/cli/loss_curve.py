@@ -1,7 +1,9 @@
 """``lerobot-ip-loss-curve``: the training curve of an ``instant_policy`` run as a PNG (and a JSON of the figures).
 
 Every ``OUTPUT_DIR/checkpoints/<step>/pretrained_model`` of a ``lerobot-train`` run is evaluated on a fixed, seeded
-sample of frames of the training dataset (training loss) and of a held-out pseudo-task dataset (validation loss); see
+sample of frames of the training dataset (training loss) and of a held-out pseudo-task dataset (validation loss), and on
+the held-out frames with every frame's demonstrations swapped for another pseudo-task's (the context swap); the
+held-out translation and rotation losses are drawn against the prior-only level. See
 :mod:`lerobot_instant_policy.training.loss_curve`. Results are cached per checkpoint in the JSON file, so running it
 again after more checkpoints only evaluates the new ones.
 """
@@ -24,11 +26,12 @@ from ..training.loss_curve import (
     find_checkpoints,
     load_checkpoint,
     load_evaluation_set,
+    prior_only_loss,
     weights_fingerprint,
 )
 
 PROG = "lerobot-ip-loss-curve"
-LABELS = {"train": "training", "val": "validation (held-out)"}
+LABELS = {"train": "training", "val": "validation (held-out)", "val_swap": "held-out, swapped context"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -73,6 +76,7 @@ def run(args: argparse.Namespace) -> dict:
     settings = {"samples": args.samples, "batch_size": args.batch_size, "seed": args.seed}
     cache = LossCurveCache(json_path, settings, descriptions)
     evaluated, reused = [], []
+    prior = cache.prior
     steps = [checkpoint.step for checkpoint in checkpoints]
     for checkpoint in checkpoints:
         weights = weights_fingerprint(checkpoint)
@@ -88,6 +92,11 @@ def run(args: argparse.Namespace) -> dict:
                 )
         results = {name: evaluate_loss(policy, preprocessor, evaluation, args.batch_size, args.seed)
                    for name, evaluation in evaluations.items()}
+        results["val_swap"] = evaluate_loss(policy, preprocessor, evaluations["val"], args.batch_size, args.seed,
+                                            swap_context=True)
+        if prior is None:
+            prior = prior_only_loss(policy, preprocessor, evaluations["val"], args.batch_size, args.seed)
+        cache.prior = prior
         cache.put(checkpoint.step, weights, results)
         cache.save(steps)
         evaluated.append(checkpoint.step)
@@ -95,7 +104,9 @@ def run(args: argparse.Namespace) -> dict:
                                                      for name, result in results.items()), file=sys.stderr)
     cache.save(steps)
     entries = [cache.entries[step] for step in steps]
-    picture = draw_loss_curve(entries, descriptions, LABELS, args.out, picture_title(Path(args.run), descriptions))
+    lines = {**descriptions, "val_swap": descriptions["val"]}
+    levels = {"prior-only translation, held-out": prior["translation"]} if prior else None
+    picture = draw_loss_curve(entries, lines, LABELS, args.out, picture_title(Path(args.run), descriptions), levels)
     best = min(entries, key=lambda entry: entry["val"]["loss"])
     return {
         "run": str(args.run),
@@ -106,10 +117,22 @@ def run(args: argparse.Namespace) -> dict:
         "cache_discarded": cache.discarded,
         "evaluated": evaluated,
         "reused": reused,
-        "curve": [{"step": entry["step"], "train_loss": entry["train"]["loss"], "val_loss": entry["val"]["loss"]}
+        "prior_only_val": prior,
+        "curve": [{"step": entry["step"], "train_loss": entry["train"]["loss"], "val_loss": entry["val"]["loss"],
+                   "val_translation": entry["val"]["translation"],
+                   "val_swap_translation": entry.get("val_swap", {}).get("translation"),
+                   "context_gain_translation": _gain(entry, "translation"),
+                   "context_gain_rotation": _gain(entry, "rotation")}
                   for entry in entries],
         "best_val": {"step": best["step"], "val_loss": best["val"]["loss"]},
     }
+
+
+def _gain(entry: dict, part: str) -> float | None:
+    """Held-out loss with a swapped context / with the frame's own context (``None`` for an entry without a swap)."""
+    if "val_swap" not in entry or entry["val"][part] <= 0:
+        return None
+    return round(entry["val_swap"][part] / entry["val"][part], 3)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,6 +17,7 @@ Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus 
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,6 +79,7 @@ class ContextBank:
         for episode, task in zip(self.episode_indices.tolist(), self.task_of_row):
             by_task.setdefault(task, []).append(episode)
         self._episodes_of_task = {task: np.array(episodes, dtype=np.int64) for task, episodes in by_task.items()}
+        self._context_task = {task: task for task in by_task}  # whose episodes a task's frames get as context
         self._encoded: dict[int, Encoded] = {}
 
     @classmethod
@@ -183,26 +185,41 @@ class ContextBank:
             self.gripper_open[row],
         )
 
-    def sample_context(self, episode_index: int, num_demos: int, rng: np.random.Generator) -> np.ndarray:
-        """``num_demos`` episode indices ``(N,)`` of other episodes with ``episode_index``'s task, in random order.
+    def with_swapped_contexts(self) -> ContextBank:
+        """The same bank, except that the frames of every task get the episodes of the *next* task (in sorted task
+        order, the last task the first's) as context: the context-swap reference of the learning measurements. It
+        shares this bank's arrays and encoder cache."""
+        tasks = self.tasks
+        if len(tasks) < 2:
+            raise DemonstrationError("a context swap needs at least 2 tasks in the bank")
+        swapped = copy.copy(self)
+        swapped._context_task = {task: tasks[(index + 1) % len(tasks)] for index, task in enumerate(tasks)}
+        return swapped
 
-        Drawn without replacement when the task has at least ``N`` other episodes. With fewer, every other episode
-        is used and the rest are drawn again from them (with replacement), so that N, and with it the shape of a
-        training batch, never depends on the task. ``DemonstrationError`` when the task has no other episode.
-        """
+    def _context_candidates(self, episode_index: int) -> tuple[str, np.ndarray]:
+        task = self.task_of_row[self._row(episode_index)]
+        candidates = self._episodes_of_task[self._context_task[task]]
+        return task, candidates[candidates != episode_index]
+
+    def other_episode_counts(self, episode_indices) -> np.ndarray:
+        """How many other episodes each of ``episode_indices (...)`` has in its task: the largest N it can get."""
+        indices = np.asarray(episode_indices, dtype=np.int64)
+        counts = [len(self._context_candidates(int(episode))[1]) for episode in indices.reshape(-1)]
+        return np.array(counts, dtype=np.int64).reshape(indices.shape)
+
+    def sample_context(self, episode_index: int, num_demos: int, rng: np.random.Generator) -> np.ndarray:
+        """``num_demos`` distinct episode indices ``(N,)`` of other episodes with ``episode_index``'s task, in random
+        order. A demonstration never repeats in one context: ``DemonstrationError`` when the task has fewer than N
+        other episodes (cap N with :meth:`other_episode_counts`)."""
         if num_demos < 1:
             raise DemonstrationError(f"num_demos must be at least 1, got {num_demos}")
-        task = self.task_of_row[self._row(episode_index)]
-        others = self._episodes_of_task[task]
-        others = others[others != episode_index]
-        if len(others) == 0:
+        task, others = self._context_candidates(episode_index)
+        if len(others) < num_demos:
             raise DemonstrationError(
-                f"task {task!r} has only episode {episode_index} in the context bank: a context needs another episode"
+                f"task {task!r} has {len(others)} episodes besides episode {episode_index} in the context bank, "
+                f"a context of N={num_demos} needs {num_demos}: generate at least N + 1 demonstrations per task"
             )
-        if len(others) >= num_demos:
-            return rng.choice(others, size=num_demos, replace=False)
-        extra = rng.choice(others, size=num_demos - len(others), replace=True)
-        return rng.permutation(np.concatenate([others, extra]))
+        return rng.choice(others, size=num_demos, replace=False)
 
     def gather(self, episode_indices) -> ContextArrays:
         """The waypoints of ``episode_indices`` (an int array of any shape ``(...)``)."""

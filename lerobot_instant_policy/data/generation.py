@@ -5,6 +5,10 @@ into ``OUT/.shards/shard-XXXXX.tmp`` and renamed to ``shard-XXXXX`` once finalis
 leaves only complete, loadable shard datasets behind; ``resume`` skips them. When every shard exists they are
 merged in order with LeRobot's ``aggregate_datasets`` into ``OUT`` itself (one data file per shard). Every task draws from its own
 random stream ``(seed, task index)``, so the dataset does not depend on the number of workers.
+
+``family`` picks the rung of the pseudo-task ladder (``pseudo_tasks.FAMILIES``). With ``tasks_per_object_group``
+G > 1, consecutive groups of G tasks share their two objects (drawn from the stream ``(seed, group, 1)``) and differ
+only in their motions, so a network cannot tell a task from its objects: only the demonstrations tell them apart.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import numpy as np
 from .lerobot_format import DEFAULT_FPS, create_dataset, keep_array_types_while_aggregating, write_episode
 from .objects import load_object, object_ids, validate_object_id
 from .pseudo_demos import DemoConfig, GenerationError, hold_signature, make_demo
-from .pseudo_tasks import PseudoTask, sample_pseudo_task
+from .pseudo_tasks import FAMILIES, PseudoTask, sample_pseudo_task
 from .rendering import PointCloudRenderer, RenderConfig
 
 SHARDS_DIR = ".shards"
@@ -44,15 +48,19 @@ class GenerationConfig:
     object_split: str = "train"
     object_pool: list[str] | None = None
     biased_fraction: float = 0.5
+    family: str = "full"
+    tasks_per_object_group: int = 1
     fps: int = DEFAULT_FPS
     demo: DemoConfig = field(default_factory=DemoConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
 
     def validate(self) -> None:
-        for name in ("num_tasks", "demos_per_task", "workers", "tasks_per_shard", "fps"):
+        for name in ("num_tasks", "demos_per_task", "workers", "tasks_per_shard", "tasks_per_object_group", "fps"):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if self.family not in FAMILIES:
+            raise ValueError(f"family must be one of {list(FAMILIES)}, got {self.family!r}")
         if not 0.0 <= self.biased_fraction <= 1.0:
             raise ValueError(f"biased_fraction must lie in [0, 1], got {self.biased_fraction}")
         if self.object_pool is not None:
@@ -83,15 +91,23 @@ def generate_task(
 ) -> tuple[PseudoTask, list]:
     """Sample task ``task_index`` of ``config`` and render its ``demos_per_task`` demonstrations.
 
-    A task none of whose scenes fits (see ``make_demo``) is replaced by a new draw from the same random stream.
+    A task none of whose scenes fits (see ``make_demo``) is replaced by a new draw from the same random stream (on
+    new objects, unless the task shares its group's objects).
     """
     rng = np.random.default_rng([config.seed, task_index])
     pool = config.pool()
+    grouped = config.tasks_per_object_group > 1
+    if grouped:
+        group_rng = np.random.default_rng([config.seed, task_index // config.tasks_per_object_group, 1])
+        chosen = group_rng.choice(len(pool), size=2, replace=False)
     errors = []
     for _ in range(max_task_attempts):
-        chosen = rng.choice(len(pool), size=2, replace=False)
+        if not grouped:
+            chosen = rng.choice(len(pool), size=2, replace=False)
         objects = [load_object(pool[index]) for index in chosen]
-        task = sample_pseudo_task(task_name(config.seed, task_index), objects, rng, config.biased_fraction)
+        task = sample_pseudo_task(
+            task_name(config.seed, task_index), objects, rng, config.biased_fraction, config.family
+        )
         try:
             demos = [make_demo(task, objects, renderer, rng, config.demo)]
             signature = hold_signature(task, demos[0].layout, objects)

@@ -262,10 +262,10 @@ def _lowest_point(objects: list[ObjectModel], T_world_objects: np.ndarray) -> fl
 
 
 def _frames_of(steps: list[Step], waypoint_poses: list[np.ndarray]) -> list[int]:
-    """Indices of the (non-fault) steps that reach ``waypoint_poses``, in order, after augmentation."""
+    """Indices of the steps that reach ``waypoint_poses``, in order, after augmentation."""
     frames, index = [], 0
     for pose in waypoint_poses:
-        while steps[index].gripper_fault or steps[index].T_world_ee is not pose:
+        while steps[index].T_world_ee is not pose:
             index += 1
         frames.append(index)
     return frames

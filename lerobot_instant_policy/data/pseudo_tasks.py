@@ -1,8 +1,19 @@
-"""Pseudo-tasks: 2–6 gripper waypoints defined in the frames of two objects (paper §3.3, appendix D).
+"""Pseudo-tasks: gripper waypoints defined in the frames of two objects (paper §3.3, appendix D).
 
 A waypoint is anchored to one object's *initial* pose, so replaying the same task in a scene with new object
-poses puts every waypoint at the same place relative to its object. Half of the tasks follow biased templates
-(grasp, pick-and-place, push, open/close by a pull or a hinge arc, press); the rest are random waypoints.
+poses puts every waypoint at the same place relative to its object.
+
+Task families, a ladder from the simplest in-context problem to the paper's generator (``FAMILIES``):
+
+- ``reach`` (rung 1): move to one pose relative to one of the two objects; no gripper change.
+- ``reach_grip`` (rung 2): reach a pose at an object's surface, close the gripper there, retreat in a direction
+  of the task's own.
+- ``grasp_place`` (rung 3): grasp one object and place it at a pose relative to the second (pick-and-place).
+- ``full`` (rung 4): 2–6 waypoints, at least one gripper change; ``biased_fraction`` of the tasks follow biased
+  templates (grasp, pick-and-place, push, open/close by a pull or a hinge arc, press), the rest are random.
+
+On every rung the anchor object, the pose on it and the approach direction are drawn per task, so the motion
+cannot be predicted from the scene alone: only the task's demonstrations tell it.
 """
 
 from __future__ import annotations
@@ -15,6 +26,7 @@ from ..geometry.se3 import look_rotation, make_pose
 from .objects import ObjectModel
 
 TEMPLATES = ("grasp", "pick_and_place", "push", "pull", "hinge", "press")
+FAMILIES = ("reach", "reach_grip", "grasp_place", "full")
 INTERPOLATIONS = ("linear", "cubic", "spherical")
 GRASP_REACH = 0.03
 _DOWN = np.array([0.0, 0.0, -1.0])
@@ -52,21 +64,52 @@ class PseudoTask:
 
 
 def sample_pseudo_task(
-    task_id: str, objects: list[ObjectModel], rng: np.random.Generator, biased_fraction: float = 0.5
+    task_id: str,
+    objects: list[ObjectModel],
+    rng: np.random.Generator,
+    biased_fraction: float = 0.5,
+    family: str = "full",
 ) -> PseudoTask:
-    """Sample a task on ``objects`` (two normalised models): a biased template with ``biased_fraction``."""
-    if rng.random() < biased_fraction:
-        template = str(rng.choice(TEMPLATES))
-        waypoints = _TEMPLATE_SAMPLERS[template](objects, rng)
+    """Sample a task of ``family`` (see ``FAMILIES``) on ``objects`` (two normalised models); in the ``full`` family
+    a biased template with probability ``biased_fraction``, else random waypoints."""
+    if family not in FAMILIES:
+        raise ValueError(f"unknown pseudo-task family {family!r}; known: {list(FAMILIES)}")
+    if family == "full":
+        if rng.random() < biased_fraction:
+            template = str(rng.choice(TEMPLATES))
+            waypoints = _TEMPLATE_SAMPLERS[template](objects, rng)
+        else:
+            template = "random"
+            waypoints = _random_waypoints(objects, rng)
     else:
-        template = "random"
-        waypoints = _random_waypoints(objects, rng)
-    if not 2 <= len(waypoints) <= 6:
+        template = family
+        waypoints = _FAMILY_SAMPLERS[family](objects, rng)
+    if not 1 <= len(waypoints) <= 6:
         raise AssertionError(f"template {template} made {len(waypoints)} waypoints")
     task = PseudoTask(task_id, template, (objects[0].object_id, objects[1].object_id), waypoints)
-    if task.gripper_changes() == 0:
+    if family != "reach" and task.gripper_changes() == 0:
         raise AssertionError(f"template {template} made no gripper change")
     return task
+
+
+def _reach(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+    """Rung 1: one pose 2–10 cm off a random surface point of a random object, approached from a random direction."""
+    anchor = int(rng.integers(2))
+    point, normal = _surface_point(objects[anchor], rng, (-0.3, 1.0))
+    position = point + normal * rng.uniform(0.02, 0.1)
+    position[2] = max(position[2], 0.03)
+    approach = _approach(normal, rng, rng.uniform(0.2, 1.0))
+    return [Waypoint(anchor, make_pose(position, look_rotation(approach, rng.uniform(-np.pi, np.pi))), True, _smooth(rng))]
+
+
+def _reach_grip(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+    """Rung 2: reach a pose at a random object's surface, close the gripper, retreat 5–15 cm up and sideways."""
+    anchor = int(rng.integers(2))
+    grip = _grasp_pose(objects[anchor], rng, top=rng.random() < 0.6)
+    sideways = rng.normal(size=2)
+    sideways *= rng.uniform(0.0, 0.08) / np.linalg.norm(sideways)
+    retreat = _offset(grip, up=rng.uniform(0.05, 0.15), shift=np.array([sideways[0], sideways[1], 0.0]))
+    return [Waypoint(anchor, grip, False, _smooth(rng)), Waypoint(anchor, retreat, False)]
 
 
 def _surface_point(
@@ -266,6 +309,12 @@ def _rot_z(angle: float) -> np.ndarray:
     cos, sin = np.cos(angle), np.sin(angle)
     return np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
 
+
+_FAMILY_SAMPLERS = {
+    "reach": _reach,
+    "reach_grip": _reach_grip,
+    "grasp_place": _pick_and_place,
+}
 
 _TEMPLATE_SAMPLERS = {
     "grasp": _grasp,

@@ -175,12 +175,11 @@ def add_disturbance(
 
 
 def add_gripper_faults(steps: list[Step], fraction: float, rng: np.random.Generator) -> list[Step]:
-    """On ``fraction`` of the frames the observed gripper state is wrong; the action corrects it in place.
+    """On ``fraction`` of the frames the observed gripper state is wrong (paper appendix D: flipped gripper states).
 
-    A fault at frame ``t`` inserts a frame with the EE at the same pose, the wrong gripper state and an action
-    that restores the right state without moving; frame ``t`` itself follows. This puts re-grasping in the data;
-    a fault never changes which object is held (the re-grasp takes the same object back).
-    Frames next to a commanded gripper change are never faulted.
+    A fault at frame ``t`` flips only the *observed* gripper state of that frame; its pose and its action (the next
+    pose and the right gripper command) stay as they were, so no frame is inserted and the motion never pauses.
+    Frames next to a commanded gripper change are never faulted, and a fault never changes which object is held.
     """
     eligible = [
         index
@@ -192,12 +191,12 @@ def add_gripper_faults(steps: list[Step], fraction: float, rng: np.random.Genera
     if count == 0:
         return steps
     faulted = set(rng.choice(eligible, size=count, replace=False).tolist())
-    output = []
-    for index, step in enumerate(steps):
-        if index in faulted:
-            output.append(Step(step.T_world_ee, not step.gripper_open, step.T_world_ee, step.gripper_open, True))
-        output.append(step)
-    return output
+    return [
+        Step(step.T_world_ee, not step.gripper_open, step.action_T_world_ee, step.action_gripper_open, True)
+        if index in faulted
+        else step
+        for index, step in enumerate(steps)
+    ]
 
 
 def _bounded_step(T_from: np.ndarray, T_to: np.ndarray) -> np.ndarray:

@@ -189,6 +189,31 @@ def transform_attr(
     return torch.cat([sinusoidal_encoding(t, num_frequencies), sinusoidal_encoding(displacement, num_frequencies)], -1)
 
 
+def dense_transform_attr(
+    src_frames: torch.Tensor, dst_frames: torch.Tensor, keypoints: torch.Tensor, num_frequencies: int
+) -> torch.Tensor:
+    """:func:`transform_attr` of every keypoint pair between frames, in the dense layout of σ and ψ's fast path.
+
+    Args:
+        src_frames: ``(B, F_src, 4, 4)`` and ``dst_frames``: ``(B, F_dst, 4, 4)``, poses in a common frame per row.
+        keypoints: ``(K, 3)`` gripper keypoints.
+
+    Returns:
+        ``(B, F_src · K, F_dst · K, 2 E)``: the attribute of the edge from keypoint ``k_s`` of source frame ``i`` to
+        keypoint ``k_d`` of destination frame ``j`` at ``[:, i · K + k_s, j · K + k_d]`` (it depends on ``i``, ``j``,
+        ``k_d`` only), as :func:`transform_attr` gives it on the same edge.
+    """
+    batch, num_src, num_dst, num_keypoints = src_frames.shape[0], src_frames.shape[1], dst_frames.shape[1], len(keypoints)
+    R_src_t = src_frames[:, :, None, :3, :3].transpose(-1, -2)  # (B, F_src, 1, 3, 3)
+    R = R_src_t @ dst_frames[:, None, :, :3, :3]  # (B, F_src, F_dst, 3, 3)
+    t = (R_src_t @ (dst_frames[:, None, :, :3, 3] - src_frames[:, :, None, :3, 3])[..., None]).squeeze(-1)
+    displacement = keypoints @ R.transpose(-1, -2) - keypoints  # (B, F_src, F_dst, K, 3): R k − k
+    translation = sinusoidal_encoding(t, num_frequencies)[:, :, :, None].expand(-1, -1, -1, num_keypoints, -1)
+    attr = torch.cat([translation, sinusoidal_encoding(displacement, num_frequencies)], dim=-1)
+    attr = attr[:, :, None].expand(-1, -1, num_keypoints, -1, -1, -1)  # the source keypoint does not matter
+    return attr.reshape(batch, num_src * num_keypoints, num_dst * num_keypoints, attr.shape[-1])
+
+
 def keypoint_offset_attr(store, keypoints: torch.Tensor, num_frequencies: int) -> torch.Tensor:
     """``enc(k_dst − k_src)`` per edge, both keypoints in the gripper frame (edges between different worlds)."""
     return sinusoidal_encoding(keypoints[store.dst_keypoint] - keypoints[store.src_keypoint], num_frequencies)

@@ -4,6 +4,10 @@ One layer runs a PyG :class:`TransformerConv` with ``edge_dim`` per edge type (i
 value, query, key and edge projections), sums the results per destination node type (:class:`HeteroConv`), then
 applies ``LayerNorm(x + attention)`` and ``LayerNorm(h + MLP(h))`` per node type. Node types that receive no edge in
 a layer keep their features.
+
+``forward_dense`` runs the same layers on graphs whose every edge type joins all source nodes of a graph to all its
+destination nodes (σ's local graphs), in a dense batched layout (:mod:`.dense_attention`): the same weights and
+outputs, without PyG's scatter operations.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import torch
 from torch import nn
 from torch_geometric.nn import HeteroConv, TransformerConv
 
+from .dense_attention import dense_transformer_conv
 from .graph import EdgeType
 
 
@@ -53,7 +58,26 @@ class HeteroGraphTransformerLayer(nn.Module):
         edge_index_dict: dict[EdgeType, torch.Tensor],
         edge_attr_dict: dict[EdgeType, torch.Tensor],
     ) -> dict[str, torch.Tensor]:
-        attended = self.attention(x_dict, edge_index_dict, edge_attr_dict=edge_attr_dict)
+        return self._update(x_dict, self.attention(x_dict, edge_index_dict, edge_attr_dict=edge_attr_dict))
+
+    def forward_dense(
+        self,
+        x_dict: dict[str, torch.Tensor],
+        edge_attr_dict: dict[EdgeType, torch.Tensor],
+        mask_dict: Mapping[EdgeType, torch.Tensor | None],
+    ) -> dict[str, torch.Tensor]:
+        """The layer on G complete graphs: ``x_dict`` node type → ``(G, n, H)``, ``edge_attr_dict`` edge type →
+        ``(G, n_src, n_dst, E)``, ``mask_dict`` edge type → ``(n_src, n_dst)`` bool or ``None`` (all edges)."""
+        attended: dict[str, torch.Tensor] = {}
+        for edge_type, conv in self.attention.convs.items():
+            source, _, destination = edge_type
+            update = dense_transformer_conv(
+                conv, x_dict[source], x_dict[destination], edge_attr_dict[edge_type], mask_dict[edge_type]
+            )
+            attended[destination] = attended[destination] + update if destination in attended else update
+        return self._update(x_dict, attended)
+
+    def _update(self, x_dict: dict[str, torch.Tensor], attended: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         out = dict(x_dict)
         for node, update in attended.items():
             hidden = self.attention_norm[node](x_dict[node] + update)
@@ -98,4 +122,15 @@ class HeteroGraphTransformer(nn.Module):
         """``x_dict``: node type → ``(num_nodes, hidden_dim)``; returns the output node types' features."""
         for layer in self.layers:
             x_dict = layer(x_dict, edge_index_dict, edge_attr_dict)
+        return {node: x_dict[node] for node in self.output_node_types}
+
+    def forward_dense(
+        self,
+        x_dict: dict[str, torch.Tensor],
+        edge_attr_dict: dict[EdgeType, torch.Tensor],
+        mask_dict: Mapping[EdgeType, torch.Tensor | None],
+    ) -> dict[str, torch.Tensor]:
+        """:meth:`forward` on G complete graphs in the dense layout of :meth:`HeteroGraphTransformerLayer.forward_dense`."""
+        for layer in self.layers:
+            x_dict = layer.forward_dense(x_dict, edge_attr_dict, mask_dict)
         return {node: x_dict[node] for node in self.output_node_types}

@@ -49,6 +49,7 @@ from .graph import (
     action_graph,
     context_edge_dims,
     context_graph,
+    dense_transform_attr,
     keypoint_offset_attr,
     local_edge_dims,
     local_graph,
@@ -66,6 +67,9 @@ class InstantPolicyNetworkConfig:
     (σ), ``context_layers`` (φ) and ``action_layers`` (ψ) override ``num_layers`` per stage (``None``: ``num_layers``).
     ``reencode_action_clouds``: True re-encodes the live cloud in every action frame at every denoising step (the
     paper's choice); False moves the current scene nodes rigidly into the action frames (no encoder in the loop).
+    ``dense_attention``: run σ (local graphs) and ψ (current → actions) in the dense layout of
+    :meth:`HeteroGraphTransformer.forward_dense` (same weights and outputs as the PyG layers, faster); False runs the
+    PyG reference layers.
     """
 
     hidden_dim: int = 128
@@ -85,6 +89,8 @@ class InstantPolicyNetworkConfig:
     gripper_keypoints: tuple[tuple[float, float, float], ...] = GRIPPER_KEYPOINTS
     num_frequencies: int = 10
     reencode_action_clouds: bool = True
+    gripper_loss_weight: float = 0.1
+    dense_attention: bool = True
     max_num_demos: int = 8
     max_demo_length: int = 32
 
@@ -111,6 +117,8 @@ class InstantPolicyNetworkConfig:
             raise ValueError("gripper_keypoints needs at least 3 points of 3 coordinates (an SE(3) fit needs 3)")
         if self.max_translation <= 0 or self.max_rotation_deg <= 0:
             raise ValueError("max_translation and max_rotation_deg must be positive")
+        if self.gripper_loss_weight < 0:
+            raise ValueError(f"gripper_loss_weight must be non-negative, got {self.gripper_loss_weight}")
 
     def to_dict(self) -> dict:
         values = dataclasses.asdict(self)
@@ -274,6 +282,8 @@ class InstantPolicyNetwork(nn.Module):
         self, scene_positions: torch.Tensor, scene_features: torch.Tensor, gripper_features: torch.Tensor
     ) -> torch.Tensor:
         """σ on G local graphs: scene ``(G, M, 3)``, ``(G, M, D)``, gripper ``(G, K, H)`` → gripper ``(G, K, H)``."""
+        if self.config.dense_attention:
+            return self._local_gripper_features_dense(scene_positions, scene_features, gripper_features)
         num_graphs, num_scene = scene_positions.shape[:2]
         graph = local_graph(num_graphs, num_scene, self.num_keypoints, scene_positions.device)
         keypoints = self._keypoints(scene_positions)
@@ -293,6 +303,32 @@ class InstantPolicyNetwork(nn.Module):
         }
         out = self.local_network(x, graph.edge_index_dict, edge_attr)[GRIPPER]
         return out.view(num_graphs, self.num_keypoints, -1)
+
+    def _local_gripper_features_dense(
+        self, scene_positions: torch.Tensor, scene_features: torch.Tensor, gripper_features: torch.Tensor
+    ) -> torch.Tensor:
+        """:meth:`_local_gripper_features` in the dense layout: attributes ``enc(p_dst − p_src)`` of every node pair
+        ``(G, n_src, n_dst, E)``, self pairs masked out, as in :func:`~.graph.local_graph`."""
+        num_scene, device = scene_positions.shape[1], scene_positions.device
+        keypoints = self._keypoints(scene_positions)
+        frequencies = self.config.num_frequencies
+        gripper_positions = keypoints.expand(len(scene_positions), -1, -1)
+
+        def pair_attr(src: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:
+            return sinusoidal_encoding(dst[:, None, :, :] - src[:, :, None, :], frequencies)
+
+        edge_attr = {
+            SCENE_TO_SCENE: pair_attr(scene_positions, scene_positions),
+            SCENE_TO_GRIPPER: pair_attr(scene_positions, gripper_positions),
+            GRIPPER_TO_GRIPPER: pair_attr(gripper_positions, gripper_positions),
+        }
+        masks = {
+            SCENE_TO_SCENE: ~torch.eye(num_scene, dtype=torch.bool, device=device),
+            SCENE_TO_GRIPPER: None,
+            GRIPPER_TO_GRIPPER: ~torch.eye(self.num_keypoints, dtype=torch.bool, device=device),
+        }
+        x = {SCENE: self.scene_projection(scene_features), GRIPPER: gripper_features}
+        return self.local_network.forward_dense(x, edge_attr, masks)[GRIPPER]
 
     # ------------------------------------------------------------------ context (once per control step)
     def encode_demo_geometry(
@@ -393,7 +429,7 @@ class InstantPolicyNetwork(nn.Module):
 
         Returns:
             ``(B, T, K, 7)``: translation flow (3) and rotation flow (3), normalised as in
-            :meth:`ActionDiffusion.flow_targets`, then the predicted clean gripper value in [−1, 1] terms.
+            :meth:`ActionDiffusion.flow_targets`, then the logit of the clean gripper command being "open".
         """
         batch, horizon = context.batch_size, self.config.prediction_horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
@@ -407,16 +443,39 @@ class InstantPolicyNetwork(nn.Module):
             scene_positions.flatten(0, 1),
             scene_features.flatten(0, 1),
             self.action_gripper_features(action_gripper, timesteps).flatten(0, 1),
-        )
+        ).view(batch, horizon * self.num_keypoints, -1)
+        actions = self._action_features(context, T_ee_actions, gripper_features)
+        out = torch.cat([self.translation_head(actions), self.rotation_head(actions), self.gripper_head(actions)], -1)
+        return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1)
 
-        graph = action_graph(batch, horizon, self.num_keypoints, T_ee_actions.device)
+    def _action_features(
+        self, context: InstantPolicyContext, T_ee_actions: torch.Tensor, gripper_features: torch.Tensor
+    ) -> torch.Tensor:
+        """ψ: current and action gripper nodes ``(B, T · K, H)`` after σ, action frames ``(B, T, 4, 4)`` in the EE
+        frame → the action gripper nodes' features ``(B · T · K, H)``."""
+        batch, horizon = T_ee_actions.shape[:2]
         keypoints = self._keypoints(T_ee_actions)
-        current_frames = torch.eye(4, dtype=T_ee_actions.dtype, device=T_ee_actions.device).expand(batch, 4, 4)
-        action_frames = T_ee_actions.reshape(-1, 4, 4)
         frequencies = self.config.num_frequencies
+        current_frames = torch.eye(4, dtype=T_ee_actions.dtype, device=T_ee_actions.device).expand(batch, 1, 4, 4)
+        if self.config.dense_attention:
+            edge_attr = {
+                CURRENT_TO_ACTION: dense_transform_attr(current_frames, T_ee_actions, keypoints, frequencies),
+                ACTION_TO_ACTION: dense_transform_attr(T_ee_actions, T_ee_actions, keypoints, frequencies),
+            }
+            other_frame = ~torch.eye(horizon, dtype=torch.bool, device=T_ee_actions.device)
+            masks = {
+                CURRENT_TO_ACTION: None,
+                ACTION_TO_ACTION: other_frame.repeat_interleave(self.num_keypoints, 0).repeat_interleave(
+                    self.num_keypoints, 1
+                ),
+            }
+            x = {CURRENT: context.current_gripper_features, ACTION: gripper_features}
+            return self.action_network.forward_dense(x, edge_attr, masks)[ACTION].reshape(-1, gripper_features.shape[-1])
+        graph = action_graph(batch, horizon, self.num_keypoints, T_ee_actions.device)
+        action_frames = T_ee_actions.reshape(-1, 4, 4)
         edge_attr = {
             CURRENT_TO_ACTION: transform_attr(
-                current_frames, action_frames, graph[CURRENT_TO_ACTION], keypoints, frequencies
+                current_frames[:, 0], action_frames, graph[CURRENT_TO_ACTION], keypoints, frequencies
             ),
             ACTION_TO_ACTION: transform_attr(action_frames, action_frames, graph[ACTION_TO_ACTION], keypoints, frequencies),
         }
@@ -424,9 +483,7 @@ class InstantPolicyNetwork(nn.Module):
             CURRENT: context.current_gripper_features.reshape(-1, gripper_features.shape[-1]),
             ACTION: gripper_features.reshape(-1, gripper_features.shape[-1]),
         }
-        actions = self.action_network(x, graph.edge_index_dict, edge_attr)[ACTION]
-        out = torch.cat([self.translation_head(actions), self.rotation_head(actions), self.gripper_head(actions)], -1)
-        return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1)
+        return self.action_network(x, graph.edge_index_dict, edge_attr)[ACTION]
 
     def training_loss(
         self,
@@ -442,7 +499,10 @@ class InstantPolicyNetwork(nn.Module):
             action_gripper: ``(B, T)`` gripper commands, 1 open, 0 closed.
 
         Returns:
-            ``loss`` (the sum) and its parts ``translation``, ``rotation``, ``gripper`` (each a mean squared error).
+            ``loss`` = translation + rotation + ``gripper_loss_weight`` · gripper, and its parts: ``translation`` and
+            ``rotation`` (mean squared errors of the normalised flows) and ``gripper`` (binary cross-entropy of the
+            gripper logits against the clean command). The flows drive the gradients: the gripper is a binary label
+            that a cross-entropy learns fast, while its squared error on ±1 targets dominated the sum.
         """
         batch, horizon = context.batch_size, self.config.prediction_horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
@@ -460,9 +520,16 @@ class InstantPolicyNetwork(nn.Module):
         prediction = self.denoise(context, T_noisy, gripper_noisy, timesteps)
         translation = nn.functional.mse_loss(prediction[..., :3], flow_target[..., :3])
         rotation = nn.functional.mse_loss(prediction[..., 3:6], flow_target[..., 3:6])
-        gripper = nn.functional.mse_loss(prediction[..., 6], clean[..., 6:7].expand_as(prediction[..., 6]))
-        return {"loss": translation + rotation + gripper, "translation": translation, "rotation": rotation,
-                "gripper": gripper}
+        gripper_open = (clean[..., 6:7] > 0).to(prediction.dtype).expand_as(prediction[..., 6])
+        gripper = nn.functional.binary_cross_entropy_with_logits(prediction[..., 6], gripper_open)
+        loss = translation + rotation + self.config.gripper_loss_weight * gripper
+        return {"loss": loss, "translation": translation, "rotation": rotation, "gripper": gripper}
+
+    def _denoise_to_values(self, context, T_noisy, gripper, timesteps) -> torch.Tensor:
+        """:meth:`denoise` with the gripper logit turned into the clean value's estimate ``2 σ(logit) − 1`` in [−1, 1]
+        (the posterior mean of a ±1 variable), as the DDIM step expects."""
+        prediction = self.denoise(context, T_noisy, gripper, timesteps)
+        return torch.cat([prediction[..., :FLOW_DIM], 2.0 * torch.sigmoid(prediction[..., FLOW_DIM:]) - 1.0], dim=-1)
 
     @torch.no_grad()
     def sample_actions(
@@ -479,7 +546,7 @@ class InstantPolicyNetwork(nn.Module):
         """
         steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
         sample = self.diffusion.sample(
-            lambda T_noisy, gripper, timesteps: self.denoise(context, T_noisy, gripper, timesteps),
+            lambda T_noisy, gripper, timesteps: self._denoise_to_values(context, T_noisy, gripper, timesteps),
             context.batch_size,
             steps,
             generator=generator,

@@ -9,7 +9,14 @@ timesteps and noise, the number N of context demonstrations and which episodes, 
 RNG seeded the same way for every checkpoint, so two checkpoints are compared on the same frames and the same noise.
 
 On the training dataset this is the training loss; on a dataset of held-out pseudo-tasks (objects of the library's
-held-out split) it is the validation loss. :class:`LossCurveCache` keeps per-checkpoint results in a JSON file, valid
+held-out split) it is the validation loss. Two references tell whether the network reads its demonstrations:
+
+- the **context swap** (``evaluate_loss(..., swap_context=True)``): the same frames, timesteps, noise and N, with the
+  context drawn from the next pseudo-task's episodes (``ContextBank.with_swapped_contexts``); swap loss / own loss is
+  the context gain, about 1 for a network that ignores its context;
+- the **prior-only** level (:func:`prior_only_loss`): the translation and rotation losses of the best denoiser that
+  knows only the statistics of the actions (a Gaussian prior per normalised action coordinate and horizon step, its
+  mean and variance from the evaluated frames), not the observation nor the demonstrations. :class:`LossCurveCache` keeps per-checkpoint results in a JSON file, valid
 only for the same sample settings and the same datasets, and :func:`draw_loss_curve` plots them.
 """
 
@@ -37,7 +44,7 @@ from ..modeling_instant_policy import InstantPolicyPolicy
 POLICY_TYPE = "instant_policy"
 LOSS_PARTS = ("loss", "translation", "rotation", "gripper")
 PREPROCESSOR_FILE = "policy_preprocessor.json"
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 
 
 class LossCurveError(ValueError):
@@ -220,15 +227,23 @@ def _encoder_fingerprint(policy: InstantPolicyPolicy) -> str:
     return digest.hexdigest()
 
 
+def _loader(evaluation: EvaluationSet, batch_size: int):
+    return torch.utils.data.DataLoader(
+        torch.utils.data.Subset(evaluation.dataset, evaluation.indices.tolist()), batch_size=batch_size,
+        shuffle=False, num_workers=0,
+    )
+
+
 @torch.no_grad()
 def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: EvaluationSet, batch_size: int = 16,
-                  seed: int = 0) -> LossEstimate:
+                  seed: int = 0, swap_context: bool = False) -> LossEstimate:
     """The mean of ``policy.forward``'s loss and parts over ``evaluation``'s frames, in batches of ``batch_size``.
 
     The policy's training bank becomes ``evaluation.bank`` (its cached frozen-encoder outputs are kept while the
     encoder weights stay the same). Torch's RNG is seeded with ``seed`` inside ``torch.random.fork_rng``, so the
     caller's RNG state is untouched and every call with the same frames, ``batch_size`` and ``seed`` draws the same
-    timesteps, noise, context episodes and gripper flips. The policy is left in the mode it was in.
+    timesteps, noise, context episodes and gripper flips. With ``swap_context`` every frame's context comes from the
+    next pseudo-task instead of its own (everything else drawn the same). The policy is left in the mode it was in.
     """
     if batch_size < 1:
         raise LossCurveError(f"batch_size must be at least 1, got {batch_size}")
@@ -236,11 +251,8 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
     if evaluation.encoder_fingerprint != encoder:
         evaluation.bank.clear_encoded()
         evaluation.encoder_fingerprint = encoder
-    policy.set_training_bank(evaluation.bank)
-    loader = torch.utils.data.DataLoader(
-        torch.utils.data.Subset(evaluation.dataset, evaluation.indices.tolist()), batch_size=batch_size,
-        shuffle=False, num_workers=0,
-    )
+    policy.set_training_bank(evaluation.bank.with_swapped_contexts() if swap_context else evaluation.bank)
+    loader = _loader(evaluation, batch_size)
     device = next(policy.parameters()).device
     sums = dict.fromkeys(LOSS_PARTS, 0.0)
     was_training = policy.training
@@ -263,6 +275,41 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
     return LossEstimate(**means, samples=total)
 
 
+@torch.no_grad()
+def prior_only_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: EvaluationSet, batch_size: int = 16,
+                    seed: int = 0) -> dict[str, float]:
+    """Translation and rotation losses of the prior-only denoiser on ``evaluation``'s frames (module docstring).
+
+    With ``x₀ (S, T, 7)`` the clean normalised actions of the S frames, ``μ``, ``s²`` their mean and variance per
+    horizon step and coordinate, and ``x_t = √ᾱ x₀ + √(1−ᾱ) ε`` at a uniform timestep, the prior-only prediction is the
+    Gaussian posterior mean ``x̂₀ = μ + √ᾱ s² (x_t − √ᾱ μ) / (ᾱ s² + 1 − ᾱ)``; its flows are scored as the network's.
+    The timesteps and noise come from a torch RNG seeded with ``seed`` (the caller's RNG untouched).
+    """
+    diffusion = policy.network.diffusion
+    clean = []
+    for batch in _loader(evaluation, batch_size):
+        _, _, _, T_ee_actions, action_gripper = policy.training_targets(preprocessor(batch))
+        clean.append(diffusion.normalize(T_ee_actions.double(), action_gripper.double()))
+    x0 = torch.cat(clean)
+    mean, variance = x0.mean(dim=0), x0.var(dim=0, unbiased=False)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        timesteps = torch.randint(0, diffusion.num_train_timesteps, (len(x0),))
+        noise = torch.randn(x0.shape, dtype=x0.dtype)
+    x_t = diffusion.add_noise(x0, noise, timesteps)
+    alpha_bar = diffusion.train_scheduler.alphas_cumprod.to(x0.dtype)[timesteps][:, None, None]
+    gain = alpha_bar.sqrt() * variance / (alpha_bar * variance + 1.0 - alpha_bar)
+    x0_prior = mean + gain * (x_t - alpha_bar.sqrt() * mean)
+    T_noisy, _ = diffusion.unnormalize(x_t)
+    target = diffusion.flow_targets(diffusion.unnormalize(x0)[0], T_noisy)
+    predicted = diffusion.flow_targets(diffusion.unnormalize(x0_prior)[0], T_noisy)
+    return {
+        "translation": float(torch.nn.functional.mse_loss(predicted[..., :3], target[..., :3])),
+        "rotation": float(torch.nn.functional.mse_loss(predicted[..., 3:6], target[..., 3:6])),
+        "samples": len(x0),
+    }
+
+
 # ---------------------------------------------------------------------------------------------------- cache
 class LossCurveCache:
     """Per-checkpoint results in a JSON file, valid for one ``settings`` dict (samples, batch size, seed) and one
@@ -275,6 +322,7 @@ class LossCurveCache:
                        "datasets": {name: _cache_key(description) for name, description in datasets.items()}}
         self.descriptions = datasets
         self.entries: dict[int, dict] = {}
+        self.prior: dict | None = None  # the prior-only level on the held-out frames (depends on the data only)
         self.discarded = False
         if self.path.is_file():
             try:
@@ -283,6 +331,7 @@ class LossCurveCache:
                 stored = {}
             if {key: stored.get(key) for key in self.header} == self.header:
                 self.entries = {int(entry["step"]): entry for entry in stored.get("checkpoints", [])}
+                self.prior = stored.get("prior_only")
             else:
                 self.discarded = True
 
@@ -298,7 +347,7 @@ class LossCurveCache:
     def save(self, steps: list[int]) -> None:
         """Write the entries of ``steps`` (atomically: a killed run never leaves half a file)."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        document = {**self.header, "dataset_details": self.descriptions,
+        document = {**self.header, "dataset_details": self.descriptions, "prior_only": self.prior,
                     "checkpoints": [self.entries[step] for step in sorted(steps) if step in self.entries]}
         temporary = self.path.with_name(self.path.name + ".tmp")
         temporary.write_text(json.dumps(document, indent=2))
@@ -311,12 +360,13 @@ def _cache_key(description: dict) -> dict:
 
 # ---------------------------------------------------------------------------------------------------- picture
 def draw_loss_curve(entries: list[dict], datasets: dict[str, dict], labels: dict[str, str], out: str | Path,
-                    title: str) -> Path:
+                    title: str, levels: dict[str, float] | None = None) -> Path:
     """PNG at ``out``: total loss vs training step for every dataset (left) and its three parts (right).
 
     ``entries``: cache entries ``{"step", name: {"loss", "translation", …}}`` in step order; ``datasets``:
     ``name → EvaluationSet.describe()``; ``labels``: ``name →`` its legend label. The loss axis is logarithmic when
-    the values span more than a factor of 10.
+    the values span more than a factor of 10. ``levels``: horizontal reference lines on the parts' axes, ``label →
+    value`` (e.g. the prior-only translation loss).
     """
     import matplotlib
 
@@ -331,7 +381,10 @@ def draw_loss_curve(entries: list[dict], datasets: dict[str, dict], labels: dict
         for part, colour in zip(LOSS_PARTS[1:], ("tab:blue", "tab:orange", "tab:green")):
             parts_axes.plot(steps, [entry[name][part] for entry in entries], line_style, color=colour, marker=".",
                             label=f"{part}, {labels[name]}")
-    for axes, ylabel in ((total_axes, "loss = translation + rotation + gripper"), (parts_axes, "loss part (MSE)")):
+    for (label, value), line_style in zip((levels or {}).items(), (":", "-.", "--")):
+        parts_axes.axhline(value, color="black", linestyle=line_style, linewidth=1.2, label=label)
+    total_ylabel = "loss = translation + rotation + w · gripper"
+    for axes, ylabel in ((total_axes, total_ylabel), (parts_axes, "loss part (flow MSE, gripper BCE)")):
         values = [value for line in axes.get_lines() for value in line.get_ydata()]
         if min(values) > 0 and max(values) / min(values) > 10:
             axes.set_yscale("log")

@@ -1,0 +1,46 @@
+"""In-context learning on rung 1 of the pseudo-task ladder (issue 11): a short ``lerobot-train`` run on reach tasks
+must read its demonstrations. Swapping each held-out task's demonstrations for another task's (same frames, same
+noise) must make the action error clearly worse: context gain > 1.3. A property of the trained model, not a timing.
+About 20 minutes on 2 CPU cores, so marked slow (skipped when CI=true)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lerobot_instant_policy.cli import action_error as ae
+from lerobot_instant_policy.cli.generate import main as generate_main
+
+TRAIN = Path(sys.executable).parent / "lerobot-train"
+STEPS = 600
+
+
+@pytest.mark.slow
+def test_a_short_rung1_run_reads_its_demonstrations(tmp_path):
+    common = ["--family", "reach", "--tasks-per-object-group", "4", "--demos-per-task", "4", "--workers", "2",
+              "--no-progress"]
+    assert generate_main(["--out", str(tmp_path / "train"), "--repo-id", "local/reach_train", "--num-tasks", "120",
+                          "--seed", "31", "--object-split", "train", *common]) == 0
+    assert generate_main(["--out", str(tmp_path / "val"), "--repo-id", "local/reach_val", "--num-tasks", "12",
+                          "--seed", "131", "--object-split", "held_out", *common]) == 0
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
+    out = tmp_path / "run"
+    command = [
+        str(TRAIN), "--policy.type=instant_policy", "--policy.preset=small", "--policy.reencode_action_clouds=false",
+        "--policy.max_demos=2", "--policy.optimizer_lr=3e-4", "--policy.scheduler_warmup_steps=100",
+        "--dataset.repo_id=local/reach_train", f"--dataset.root={tmp_path / 'train'}", f"--steps={STEPS}",
+        "--batch_size=8", "--num_workers=1", f"--save_freq={STEPS}", "--log_freq=100", "--wandb.enable=false",
+        "--seed=1", "--policy.device=cpu", f"--output_dir={out}",
+    ]
+    result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=3600)
+    assert result.returncode == 0, result.stderr[-4000:]
+    checkpoint = out / "checkpoints" / "last" / "pretrained_model"
+    measured = ae.action_error(checkpoint, tmp_path / "val", tasks=12, frames_per_task=4, seed=0, ks=[4], ns=[2],
+                               ls=[10], untrained=False, repo_id="local/reach_val")
+    own, hold = measured["settings"][0]["translation_mm"], measured["hold"]["translation_mm"]
+    assert measured["context_gain"]["translation"] > 1.3, measured
+    assert own < hold, measured
