@@ -91,23 +91,13 @@ def main(argv: list[str] | None = None) -> int:
     inference.add_argument("--preset", choices=["small", "paper"], default="small")
     inference.add_argument("--repeats", type=int, default=5)
     inference.add_argument("--policy-path", help="time this checkpoint (a pretrained_model directory) instead of a fresh preset")
-    inference.add_argument(
-        "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
-    )
-    inference.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
-    inference.add_argument("--compare-dense-attention", action="store_true",
-                        help="time dense and reference attention in alternation and report the ratio")
+    _add_variant_arguments(inference)
     inference.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     train_step = commands.add_parser("train-step", help="instant_policy training samples per second, peak memory")
     train_step.add_argument("--preset", choices=["small", "paper"], default="small")
     train_step.add_argument("--batch-size", type=int, default=8)
     train_step.add_argument("--repeats", type=int, default=5)
-    train_step.add_argument(
-        "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
-    )
-    train_step.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
-    train_step.add_argument("--compare-dense-attention", action="store_true",
-                        help="time dense and reference attention in alternation and report the ratio")
+    _add_variant_arguments(train_step)
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
     if args.command == "inference":
@@ -148,6 +138,16 @@ def main(argv: list[str] | None = None) -> int:
         result = bench_generate(args.tasks, args.workers, args.repeats)
     print(json.dumps(result, indent=None if args.json else 2))
     return 0
+
+
+def _add_variant_arguments(parser: argparse.ArgumentParser) -> None:
+    """The model-variant flags of ``inference`` and ``train-step`` (read back by :func:`_overrides`)."""
+    parser.add_argument(
+        "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
+    )
+    parser.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
+    parser.add_argument("--compare-dense-attention", action="store_true",
+                        help="time dense and reference attention in alternation and report the ratio")
 
 
 def _overrides(args) -> dict:

@@ -189,6 +189,34 @@ def transform_attr(
     return torch.cat([sinusoidal_encoding(t, num_frequencies), sinusoidal_encoding(displacement, num_frequencies)], -1)
 
 
+@functools.lru_cache(maxsize=32)
+def dense_local_masks(num_scene: int, num_keypoints: int, device: torch.device) -> dict[EdgeType, torch.Tensor | None]:
+    """:func:`local_graph`'s connectivity in the dense layout: edge type → ``(n_src, n_dst)`` bool (``None``: all
+    pairs); no self loops."""
+    return {
+        SCENE_TO_SCENE: ~torch.eye(num_scene, dtype=torch.bool, device=device),
+        SCENE_TO_GRIPPER: None,
+        GRIPPER_TO_GRIPPER: ~torch.eye(num_keypoints, dtype=torch.bool, device=device),
+    }
+
+
+@functools.lru_cache(maxsize=32)
+def dense_action_masks(horizon: int, num_keypoints: int, device: torch.device) -> dict[EdgeType, torch.Tensor | None]:
+    """:func:`action_graph`'s connectivity in the dense layout: current → every action node, action ``i`` → action
+    ``j ≠ i`` (node ``i · K + k``)."""
+    other_frame = ~torch.eye(horizon, dtype=torch.bool, device=device)
+    return {
+        CURRENT_TO_ACTION: None,
+        ACTION_TO_ACTION: other_frame.repeat_interleave(num_keypoints, 0).repeat_interleave(num_keypoints, 1),
+    }
+
+
+def dense_position_attr(src_positions: torch.Tensor, dst_positions: torch.Tensor, num_frequencies: int) -> torch.Tensor:
+    """:func:`position_attr` of every node pair in the dense layout: ``(G, S, 3)``, ``(G, D, 3)`` →
+    ``(G, S, D, ·)``, ``enc(p_dst − p_src)`` at ``[:, src, dst]``."""
+    return sinusoidal_encoding(dst_positions[:, None, :, :] - src_positions[:, :, None, :], num_frequencies)
+
+
 def dense_transform_attr(
     src_frames: torch.Tensor, dst_frames: torch.Tensor, keypoints: torch.Tensor, num_frequencies: int
 ) -> torch.Tensor:

@@ -49,6 +49,9 @@ from .graph import (
     action_graph,
     context_edge_dims,
     context_graph,
+    dense_action_masks,
+    dense_local_masks,
+    dense_position_attr,
     dense_transform_attr,
     keypoint_offset_attr,
     local_edge_dims,
@@ -309,24 +312,15 @@ class InstantPolicyNetwork(nn.Module):
     ) -> torch.Tensor:
         """:meth:`_local_gripper_features` in the dense layout: attributes ``enc(p_dst − p_src)`` of every node pair
         ``(G, n_src, n_dst, E)``, self pairs masked out, as in :func:`~.graph.local_graph`."""
-        num_scene, device = scene_positions.shape[1], scene_positions.device
         keypoints = self._keypoints(scene_positions)
         frequencies = self.config.num_frequencies
         gripper_positions = keypoints.expand(len(scene_positions), -1, -1)
-
-        def pair_attr(src: torch.Tensor, dst: torch.Tensor) -> torch.Tensor:
-            return sinusoidal_encoding(dst[:, None, :, :] - src[:, :, None, :], frequencies)
-
         edge_attr = {
-            SCENE_TO_SCENE: pair_attr(scene_positions, scene_positions),
-            SCENE_TO_GRIPPER: pair_attr(scene_positions, gripper_positions),
-            GRIPPER_TO_GRIPPER: pair_attr(gripper_positions, gripper_positions),
+            SCENE_TO_SCENE: dense_position_attr(scene_positions, scene_positions, frequencies),
+            SCENE_TO_GRIPPER: dense_position_attr(scene_positions, gripper_positions, frequencies),
+            GRIPPER_TO_GRIPPER: dense_position_attr(gripper_positions, gripper_positions, frequencies),
         }
-        masks = {
-            SCENE_TO_SCENE: ~torch.eye(num_scene, dtype=torch.bool, device=device),
-            SCENE_TO_GRIPPER: None,
-            GRIPPER_TO_GRIPPER: ~torch.eye(self.num_keypoints, dtype=torch.bool, device=device),
-        }
+        masks = dense_local_masks(scene_positions.shape[1], self.num_keypoints, scene_positions.device)
         x = {SCENE: self.scene_projection(scene_features), GRIPPER: gripper_features}
         return self.local_network.forward_dense(x, edge_attr, masks)[GRIPPER]
 
@@ -462,13 +456,7 @@ class InstantPolicyNetwork(nn.Module):
                 CURRENT_TO_ACTION: dense_transform_attr(current_frames, T_ee_actions, keypoints, frequencies),
                 ACTION_TO_ACTION: dense_transform_attr(T_ee_actions, T_ee_actions, keypoints, frequencies),
             }
-            other_frame = ~torch.eye(horizon, dtype=torch.bool, device=T_ee_actions.device)
-            masks = {
-                CURRENT_TO_ACTION: None,
-                ACTION_TO_ACTION: other_frame.repeat_interleave(self.num_keypoints, 0).repeat_interleave(
-                    self.num_keypoints, 1
-                ),
-            }
+            masks = dense_action_masks(horizon, self.num_keypoints, T_ee_actions.device)
             x = {CURRENT: context.current_gripper_features, ACTION: gripper_features}
             return self.action_network.forward_dense(x, edge_attr, masks)[ACTION].reshape(-1, gripper_features.shape[-1])
         graph = action_graph(batch, horizon, self.num_keypoints, T_ee_actions.device)
