@@ -12,8 +12,13 @@ $(INSTALLED): pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: python3.12 not found (LeRobot 0.6 needs Python 3.12)"; exit 1; }
 	test -x $(VENV)/bin/python || $(PYTHON312) -m venv $(VENV)
 	$(VENV)/bin/pip install --quiet --upgrade pip
+	@echo "installing lerobot-instant-policy and its dependencies (lerobot, torch with its CUDA libraries) into $(VENV)"
+	@$(VENV)/bin/pip cache list pybullet 2>/dev/null | grep -q pybullet || echo "pybullet has no wheel for \
+	Python 3.12, so pip first compiles it from source: about 3-4 minutes on 2 cores, with no output meanwhile \
+	(about 6 minutes for the whole first install here); pip caches the wheel for later installs"
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(INSTALLED)
+	@echo "installed; $(VENV)/bin holds the lerobot-* and lerobot-ip-* commands"
 
 # Record 2 demonstrations of a bullet_tabletop task, evaluate the best available policy, print success + videos.
 demo: $(INSTALLED)

@@ -3,9 +3,13 @@
 import json
 from pathlib import Path
 
+import av
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 import pytest
 
-from lerobot_instant_policy.cli import demo, eval_suite
+from lerobot_instant_policy.cli import demo, demo_summary, eval_suite
 
 
 def test_lerobot_eval_command_names_task_policy_and_demos(tmp_path):
@@ -84,6 +88,69 @@ def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
     assert videos and all(Path(video).stat().st_size > 1000 for video in videos)
     assert "task push_button: demo_replay succeeded in" in output
     assert (tmp_path / "demos" / "push_button-n2-s0" / "meta" / "info.json").is_file()
+    # the side-by-side table: one row per episode with its seed and outcome, then the rate
+    successes = info["per_task"][0]["metrics"]["successes"]
+    for index, success in enumerate(successes):
+        assert f"{index:<7}  {1000 + index:<4}  {'success' if success else 'fail'}" in output
+    sheet = tmp_path / "contact_sheet_push_button.png"
+    assert f"contact sheet (first and last frame of every episode): {sheet}" in output
+    image = plt.imread(sheet)
+    assert image.shape[0] > 200 and image.shape[1] > 300
+
+
+def test_auto_demo_runs_instant_policy_beside_demo_replay(tmp_path):
+    policies, _ = demo.policies_to_run("auto", demo.SHIPPED_CHECKPOINT)
+    assert policies == [("instant_policy", str(demo.SHIPPED_CHECKPOINT)), ("demo_replay", None)]
+    policies, reason = demo.policies_to_run("auto", tmp_path / "no_checkpoint")
+    assert policies == [("demo_replay", None)] and "no instant_policy checkpoint" in reason
+    assert demo.policies_to_run("do_nothing", demo.SHIPPED_CHECKPOINT)[0] == [("do_nothing", None)]
+
+
+def test_summary_table_and_outcomes_from_eval_info(tmp_path):
+    info = {"per_task": [{"task_group": "push_button", "metrics": {"successes": [True, False]}}],
+            "overall": {"video_paths": [str(tmp_path / "a.mp4"), str(tmp_path / "b.mp4")]}}
+    (tmp_path / "eval_info.json").write_text(json.dumps(info))
+    outcomes = demo_summary.episode_outcomes(tmp_path, 1000)
+    assert [(e.seed, e.success, e.video.name) for e in outcomes] == [(1000, True, "a.mp4"), (1001, False, "b.mp4")]
+    failing = [demo_summary.EpisodeOutcome(e.seed, False, None) for e in outcomes]
+    table = demo_summary.summary_table("push_button", {"instant_policy": failing, "demo_replay": outcomes})
+    lines = table.splitlines()
+    assert lines[1].split() == ["episode", "seed", "instant_policy", "demo_replay"]
+    assert lines[2].split() == ["0", "1000", "fail", "success"] and lines[3].split() == ["1", "1001", "fail", "fail"]
+    assert lines[4].split() == ["success", "0%", "50%"]
+    with pytest.raises(ValueError, match="different numbers of episodes"):
+        demo_summary.summary_table("push_button", {"a": outcomes, "b": outcomes[:1]})
+    with pytest.raises(FileNotFoundError, match="did lerobot-eval finish"):
+        demo_summary.episode_outcomes(tmp_path / "missing", 1000)
+
+
+def _write_video(path: Path, values: list[int]) -> None:
+    """A 32×32 grey video whose frames have the given brightness values."""
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 32, 32, "yuv420p"
+        for value in values:
+            frame = av.VideoFrame.from_ndarray(np.full((32, 32, 3), value, dtype=np.uint8), format="rgb24")
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode())
+
+
+def test_contact_sheet_shows_first_and_last_frames_framed_by_outcome(tmp_path):
+    _write_video(tmp_path / "a.mp4", [20, 120, 240])
+    first, last = demo_summary.first_and_last_frames(tmp_path / "a.mp4")
+    assert first.shape == (32, 32, 3) and first.dtype == np.uint8
+    assert abs(int(first.mean()) - 20) < 8 and abs(int(last.mean()) - 240) < 8
+    outcomes = {"demo_replay": [demo_summary.EpisodeOutcome(1000, True, tmp_path / "a.mp4")],
+                "do_nothing": [demo_summary.EpisodeOutcome(1000, False, tmp_path / "a.mp4")]}
+    image = plt.imread(demo_summary.draw_contact_sheet("push_button", outcomes, tmp_path / "sheet.png"))[..., :3]
+
+    def share(colour: str) -> float:
+        return float(np.all(np.abs(image - matplotlib.colors.to_rgb(colour)) < 0.03, axis=-1).mean())
+
+    assert share(demo_summary.SUCCESS_COLOUR) > 0.002 and share(demo_summary.FAILURE_COLOUR) > 0.002
+    outcomes["demo_replay"][0].success = False
+    image = plt.imread(demo_summary.draw_contact_sheet("push_button", outcomes, tmp_path / "sheet.png"))[..., :3]
+    assert share(demo_summary.SUCCESS_COLOUR) == 0.0
 
 
 @pytest.mark.slow

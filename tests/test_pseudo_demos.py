@@ -22,7 +22,7 @@ from lerobot_instant_policy.data.pseudo_tasks import (
     TEMPLATES,
     sample_pseudo_task,
 )
-from lerobot_instant_policy.data.rendering import PointCloudRenderer
+from lerobot_instant_policy.data.rendering import PointCloudRenderer, RenderConfig
 from lerobot_instant_policy.data.trajectory import MAX_STEP_ROTATION, MAX_STEP_TRANSLATION
 from lerobot_instant_policy.geometry.se3 import (
     invert,
@@ -125,6 +125,34 @@ def test_render_rejects_wrong_number_of_poses(renderer, objects):
     renderer.set_objects(objects)
     with pytest.raises(ValueError, match="expected 2 object poses"):
         renderer.render(SCENE_POSES[:1], GRIPPER_AWAY, True)
+
+
+def test_surface_cloud_is_the_complete_unoccluded_surface(renderer, objects):
+    """``cloud="surface"``: every object's whole surface sample in its pose, the gripper hides nothing."""
+    with PointCloudRenderer(RenderConfig(cloud="surface")) as surface_renderer:
+        surface_renderer.set_objects(objects)
+        box_top = SCENE_POSES[0] @ make_pose([0.0, 0.0, objects[0].extents[2] + 0.005])
+        T_world_ee = make_pose(box_top[:3, 3], look_rotation(np.array([0.0, 0.0, -1.0]), 0.4))
+        away, away_labels = surface_renderer.render(SCENE_POSES, GRIPPER_AWAY, True)
+        near, near_labels = surface_renderer.render(SCENE_POSES, T_world_ee, False)
+    assert away.dtype == np.float32 and away_labels.dtype == np.int8
+    np.testing.assert_array_equal(away, near)
+    np.testing.assert_array_equal(away_labels, near_labels)
+    for index, (model, pose) in enumerate(zip(objects, SCENE_POSES, strict=True)):
+        assert (away_labels == index).sum() == len(model.surface_points)
+        local = transform_points(invert(pose), away[away_labels == index].astype(np.float64))
+        np.testing.assert_allclose(local, model.surface_points, atol=1e-5)
+    # the cameras see only part of the box (its bottom faces the table): part of the surface is far from every
+    # rendered point
+    renderer.set_objects(objects)
+    seen, seen_labels = renderer.render(SCENE_POSES, GRIPPER_AWAY, True)
+    gaps = cKDTree(seen[seen_labels == 0]).query(away[away_labels == 0])[0]
+    assert (gaps > 0.01).mean() > 0.05
+
+
+def test_render_config_rejects_unknown_cloud_source():
+    with pytest.raises(ValueError, match="cloud must be one of"):
+        RenderConfig(cloud="lidar")
 
 
 # ---------------------------------------------------------------------------------------- pseudo-tasks

@@ -9,6 +9,7 @@ import sys
 from ..config_io import load_config
 from ..data.generation import GenerationConfig, generate_dataset
 from ..data.pseudo_tasks import FAMILIES
+from ..data.rendering import CLOUD_SOURCES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,6 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--objects", nargs="+", metavar="ID", help="draw objects only from these ids (e.g. pb/mug urdf/001)")
     parser.add_argument("--family", choices=list(FAMILIES), help="rung of the pseudo-task ladder (default: full)")
     parser.add_argument("--tasks-per-object-group", type=int, help="consecutive tasks that share their two objects")
+    parser.add_argument("--cloud", choices=list(CLOUD_SOURCES),
+                        help="cameras: rendered segmented depth (default); surface: complete object surface samples")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted generation in --out")
     parser.add_argument("--keep-shards", action="store_true", help="keep the per-shard datasets after merging")
@@ -51,7 +54,10 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
         "family": args.family,
         "tasks_per_object_group": args.tasks_per_object_group,
     }
-    return dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
+    config = dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
+    if args.cloud is not None:
+        config = dataclasses.replace(config, render=dataclasses.replace(config.render, cloud=args.cloud))
+    return config
 
 
 def main(argv: list[str] | None = None) -> int:

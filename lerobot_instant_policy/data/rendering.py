@@ -18,6 +18,7 @@ from ..geometry.se3 import pose_to_pos_quat
 from .objects import ObjectModel
 
 _HIDDEN_POSITION = (0.0, 0.0, -50.0)
+CLOUD_SOURCES = ("cameras", "surface")
 
 
 @dataclass
@@ -43,9 +44,22 @@ def default_cameras() -> list[CameraConfig]:
 
 @dataclass
 class RenderConfig:
+    """How a frame's cloud is observed.
+
+    ``cloud``: ``"cameras"`` renders the segmented depth of ``cameras`` (partial views, occlusion by the gripper and
+    by the other object: what a robot sees); ``"surface"`` takes every object's complete surface sample
+    (``ObjectModel.surface_points``) in its current pose, with no camera — an idealised observation for ablations
+    and curricula, and much faster to generate.
+    """
+
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
     max_crop_pixels: int = 80
     gripper_occludes: bool = True
+    cloud: str = "cameras"
+
+    def __post_init__(self):
+        if self.cloud not in CLOUD_SOURCES:
+            raise ValueError(f"cloud must be one of {list(CLOUD_SOURCES)}, got {self.cloud!r}")
 
 
 class PointCloudRenderer:
@@ -57,6 +71,7 @@ class PointCloudRenderer:
         self._shapes: dict[str, int] = {}
         self._object_bodies: list[int] = []
         self._object_corners: list[np.ndarray] = []
+        self._surface_points: list[np.ndarray] = []
         self._label_of_body = np.full(1, -1, dtype=np.int8)
         self._views = [camera_view_matrix(camera) for camera in self.config.cameras]
         self._projections = [camera_projection_matrix(camera) for camera in self.config.cameras]
@@ -81,6 +96,7 @@ class PointCloudRenderer:
             pybullet.removeBody(body, physicsClientId=self.client)
         self._object_bodies = []
         self._object_corners = []
+        self._surface_points = [model.surface_points for model in objects]
         for model in objects:
             if model.object_id not in self._shapes:
                 self._shapes[model.object_id] = pybullet.createVisualShape(
@@ -121,6 +137,8 @@ class PointCloudRenderer:
         """
         if len(T_world_objects) != len(self._object_bodies):
             raise ValueError(f"expected {len(self._object_bodies)} object poses, got {len(T_world_objects)}")
+        if self.config.cloud == "surface":
+            return self._surface_cloud(T_world_objects)
         for body, pose in zip(self._object_bodies, T_world_objects, strict=True):
             position, quat = pose_to_pos_quat(pose)
             pybullet.resetBasePositionAndOrientation(body, position, quat, physicsClientId=self.client)
@@ -134,6 +152,13 @@ class PointCloudRenderer:
             points.append(camera_points)
             labels.append(camera_labels)
         return np.concatenate(points).astype(np.float32), np.concatenate(labels).astype(np.int8)
+
+    def _surface_cloud(self, T_world_objects: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Every object's surface sample ``(S, 3)`` posed by ``T_world_objects``: ``points (ΣS, 3)``, ``labels``."""
+        poses = zip(self._surface_points, T_world_objects, strict=True)
+        points = [surface @ pose[:3, :3].T + pose[:3, 3] for surface, pose in poses]
+        labels = [np.full(len(surface), index, dtype=np.int8) for index, surface in enumerate(self._surface_points)]
+        return np.concatenate(points).astype(np.float32), np.concatenate(labels)
 
     def _render_camera(
         self, camera: CameraConfig, view: np.ndarray, projection: np.ndarray, corners_world: np.ndarray

@@ -1,0 +1,60 @@
+"""A healthy install prints no traceback (issue 15): LeRobot's torchcodec probe says one line when no system FFmpeg
+is found, real torchcodec errors stay as they are, and a real ``lerobot-eval`` through the plugin prints none."""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+
+from lerobot_instant_policy import video_backend
+from lerobot_instant_policy.cli import eval_suite, record_demos
+
+PROBE_WARNING = (
+    "Could not load libtorchcodec. Likely causes: ...\n[start of libtorchcodec loading traceback]\nFFmpeg version 8:\n"
+    "Traceback (most recent call last):\n  ...\nOSError: libavutil.so.60: cannot open shared object file\n"
+    "'torchcodec' is installed but cannot be loaded (see the error above). Falling back to 'pyav' as a default decoder."
+)
+
+
+def _filtered(message: str) -> str:
+    record = logging.LogRecord(video_backend.PROBE_LOGGER, logging.WARNING, __file__, 1, message, None, None)
+    assert video_backend.MissingFFmpegFilter().filter(record)  # never drops a record
+    return record.getMessage()
+
+
+def test_probe_warning_is_one_line_without_system_ffmpeg(monkeypatch):
+    monkeypatch.setattr(video_backend, "system_ffmpeg_found", lambda: False)
+    assert _filtered(PROBE_WARNING) == video_backend.SHORT_MESSAGE
+    assert "\n" not in video_backend.SHORT_MESSAGE and "PyAV" in video_backend.SHORT_MESSAGE
+    # every other message passes unchanged, including %-formatted ones
+    record = logging.LogRecord(video_backend.PROBE_LOGGER, logging.WARNING, __file__, 1, "plugin %s failed", ("x",), None)
+    assert video_backend.MissingFFmpegFilter().filter(record) and record.getMessage() == "plugin x failed"
+
+
+def test_probe_warning_is_kept_whole_when_ffmpeg_is_installed(monkeypatch):
+    """With FFmpeg on the system, torchcodec's failure is a real error: the full traceback stays."""
+    monkeypatch.setattr(video_backend, "system_ffmpeg_found", lambda: True)
+    assert _filtered(PROBE_WARNING) == PROBE_WARNING
+
+
+def test_filter_is_installed_once_on_import():
+    logger = logging.getLogger(video_backend.PROBE_LOGGER)
+    video_backend.install()
+    assert sum(isinstance(f, video_backend.MissingFFmpegFilter) for f in logger.filters) == 1
+
+
+def test_lerobot_eval_prints_no_traceback(tmp_path):
+    """The real ``lerobot-eval --policy.type=demo_replay`` (it opens a LeRobot demo dataset, so LeRobot probes its
+    video backend) on one push_button episode."""
+    demos = tmp_path / "demos"
+    assert record_demos.main(["--task", "push_button", "--episodes", "2", "--out", str(demos),
+                              "--repo-id", "local/push_button"]) == 0
+    command = eval_suite.lerobot_eval_command("push_button", "demo_replay", None, demos, 2, 1, 1, 1000, tmp_path / "run")
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-4000:]
+    assert "Traceback" not in output, output[-4000:]
+    if not video_backend.system_ffmpeg_found():
+        assert video_backend.SHORT_MESSAGE in output  # the probe ran and said its one line
