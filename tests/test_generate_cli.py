@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.data.lerobot_format import POSE_GRIPPER_NAMES, read_episode
+from lerobot_instant_policy.data.objects import load_object
 from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
 
 REPO_ID = "local/test_pseudo"
@@ -232,3 +233,28 @@ def test_a_ladder_rung_with_object_groups(tmp_path):
         T_world_anchor = np.array(scene["T_world_objects"])[waypoint["anchor"]]
         T_anchor_ee = invert(T_world_anchor) @ pose_from_pos_quat(state[-1, :3].astype(float), state[-1, 3:7].astype(float))
         np.testing.assert_allclose(T_anchor_ee, np.array(waypoint["T_anchor_ee"]), atol=2e-4)
+
+
+def test_surface_clouds_from_the_command_line(tmp_path):
+    """``--cloud surface``: every frame holds complete object surfaces, and a resume with rendered clouds is refused."""
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+
+    config = config_from_args(build_parser().parse_args(["--cloud", "surface", "--num-tasks", "1"]))
+    assert config.render.cloud == "surface" and config.plan()["render"]["cloud"] == "surface"
+    out = tmp_path / "surface"
+    assert _generate(out, "--family", "reach", "--cloud", "surface", "--num-tasks", "1", "--demos-per-task", "2") == 0
+    scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
+    episode = read_episode(LeRobotDataset(REPO_ID, root=out), 0)
+    # every point of the first frame is one of the objects' surface samples in its initial pose (rendered points lie
+    # on the surface, but between the samples)
+    task = json.loads((out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()[0])
+    samples = np.concatenate([
+        transform_points(np.array(pose), load_object(object_id).surface_points)
+        for object_id, pose in zip(task["object_ids"], scenes[0]["T_world_objects"], strict=True)
+    ])
+    distances = cKDTree(samples).query(episode["points"][0].astype(np.float64))[0]
+    assert distances.max() < 1e-5
+    assert scenes[0]["task"] == scenes[1]["task"]
+    assert _generate(out, "--family", "reach", "--num-tasks", "1", "--demos-per-task", "2", "--resume") == 2
