@@ -49,7 +49,7 @@ class RenderConfig:
     ``cloud``: ``"cameras"`` renders the segmented depth of ``cameras`` (partial views, occlusion by the gripper and
     by the other object: what a robot sees); ``"surface"`` takes every object's complete surface sample
     (``ObjectModel.surface_points``) in its current pose, with no camera — an idealised observation for ablations
-    and curricula, and much faster to generate.
+    and curricula.
     """
 
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
