@@ -63,7 +63,7 @@ ladder: $(INSTALLED)
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(LADDER_DIR)/checkpoints/last), \
 		--config_path=$(LADDER_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
 		--policy.type=instant_policy --policy.preset=small --policy.reencode_action_clouds=false \
-		--policy.max_demos=2 --policy.optimizer_lr=3e-4 --policy.scheduler_warmup_steps=100 \
+		--policy.max_demos=2 --policy.optimizer_lr=1e-3 --policy.scheduler_warmup_steps=100 \
 		--dataset.repo_id=local/$(RUNG_NAME)_train --dataset.root=outputs/$(RUNG_NAME)_train \
 		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=200 --seed=1 \
 		--wandb.enable=false --output_dir=$(LADDER_DIR))
