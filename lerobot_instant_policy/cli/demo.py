@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .demo_summary import EpisodeOutcome, draw_contact_sheet, episode_outcomes, summary_table
+from .demo_summary import EpisodeOutcome, draw_contact_sheet, episode_outcomes, success_percent, summary_table
 from .eval_suite import SuiteSettings, run_task
 
 SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "checkpoints" / "instant_policy"
@@ -67,8 +67,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"lerobot-ip-demo: error: {error}", file=sys.stderr)
             return 2
         outcomes[policy] = episode_outcomes(output_dir, settings.eval_seed)
-        rate = 100 * sum(episode.success for episode in outcomes[policy]) / len(outcomes[policy])
-        print(f"task {args.task}: {policy} succeeded in {rate:.0f}% of {len(outcomes[policy])} episodes", flush=True)
+        rate, episodes = success_percent(outcomes[policy]), len(outcomes[policy])
+        print(f"task {args.task}: {policy} succeeded in {rate:.0f}% of {episodes} episodes", flush=True)
     print(summary_table(args.task, outcomes))
     sheet = draw_contact_sheet(args.task, outcomes, args.out / f"contact_sheet_{args.task}.png")
     print(f"contact sheet (first and last frame of every episode): {sheet}")

@@ -7,12 +7,13 @@ and the episode videos ``videos/<task>_0/eval_episode_<i>.mp4`` it lists in ``ov
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import av
 import numpy as np
+
+from .eval_table import EVAL_INFO, load_eval_info
 
 SUCCESS_COLOUR = "#1a9850"
 FAILURE_COLOUR = "#d73027"
@@ -29,18 +30,23 @@ class EpisodeOutcome:
 
 def episode_outcomes(output_dir: Path, eval_seed: int) -> list[EpisodeOutcome]:
     """The episodes of a one-task ``lerobot-eval`` run in ``output_dir``, in order (seeds ``eval_seed + i``)."""
-    info_path = Path(output_dir) / "eval_info.json"
+    info_path = Path(output_dir) / EVAL_INFO
     if not info_path.is_file():
-        raise FileNotFoundError(f"no eval_info.json in {output_dir}: did lerobot-eval finish?")
-    info = json.loads(info_path.read_text())
-    if len(info.get("per_task", [])) != 1:
-        raise ValueError(f"{info_path} holds {len(info.get('per_task', []))} tasks; a demo summary needs exactly one")
+        raise FileNotFoundError(f"no {EVAL_INFO} in {output_dir}: did lerobot-eval finish?")
+    info = load_eval_info(info_path)
+    if len(info["per_task"]) != 1:
+        raise ValueError(f"{info_path} holds {len(info['per_task'])} tasks; a demo summary needs exactly one")
     successes = [bool(success) for success in info["per_task"][0]["metrics"]["successes"]]
-    videos = [Path(path) for path in info["overall"].get("video_paths", [])]
+    videos = [Path(path) for path in info.get("overall", {}).get("video_paths", [])]
     return [
         EpisodeOutcome(eval_seed + index, success, videos[index] if index < len(videos) else None)
         for index, success in enumerate(successes)
     ]
+
+
+def success_percent(episodes: list[EpisodeOutcome]) -> float:
+    """The share of ``episodes`` that succeeded, in percent."""
+    return 100.0 * sum(episode.success for episode in episodes) / len(episodes)
 
 
 def summary_table(task: str, outcomes: dict[str, list[EpisodeOutcome]]) -> str:
@@ -55,7 +61,7 @@ def summary_table(task: str, outcomes: dict[str, list[EpisodeOutcome]]) -> str:
     for index, row in enumerate(zip(*outcomes.values(), strict=True)):
         cells = "".join(("success" if episode.success else "fail").ljust(width) for episode in row)
         lines.append(f"{index:<7}  {row[0].seed:<4}  {cells}")
-    rates = "".join(f"{100 * np.mean([e.success for e in outcomes[p]]):.0f}%".ljust(width) for p in policies)
+    rates = "".join(f"{success_percent(outcomes[policy]):.0f}%".ljust(width) for policy in policies)
     lines.append(f"{'success':<13}  {rates}")
     return "\n".join(lines)
 

@@ -56,8 +56,9 @@ def policy_from_run_name(run_name: str, env_type: str) -> str | None:
     return match.group(1) if match else None
 
 
-def read_eval_info(eval_info: Path, policy: str | None, env_type: str) -> list[TaskResult]:
-    """One ``TaskResult`` per task in a lerobot-eval ``eval_info.json`` (its ``per_task`` list)."""
+def load_eval_info(eval_info: Path) -> dict:
+    """A lerobot-eval ``eval_info.json``, checked: a ``per_task`` list whose entries have a ``task_group`` and a
+    ``metrics.successes`` list (one per episode, in order). ``ValueError`` otherwise."""
     try:
         info = json.loads(eval_info.read_text())
     except json.JSONDecodeError as error:
@@ -65,13 +66,21 @@ def read_eval_info(eval_info: Path, policy: str | None, env_type: str) -> list[T
     per_task = info.get("per_task") if isinstance(info, dict) else None
     if not isinstance(per_task, list):
         raise ValueError(f"{eval_info} has no 'per_task' list: not a lerobot-eval eval_info.json")
-    run_name = eval_info.parent.name
-    policy = policy or policy_from_run_name(run_name, env_type) or "policy"
-    results = []
     for entry in per_task:
         successes = entry.get("metrics", {}).get("successes")
         if not isinstance(successes, list) or "task_group" not in entry:
             raise ValueError(f"{eval_info}: a per_task entry lacks 'task_group' or 'metrics.successes'")
+    return info
+
+
+def read_eval_info(eval_info: Path, policy: str | None, env_type: str) -> list[TaskResult]:
+    """One ``TaskResult`` per task in a lerobot-eval ``eval_info.json`` (its ``per_task`` list)."""
+    per_task = load_eval_info(eval_info)["per_task"]
+    run_name = eval_info.parent.name
+    policy = policy or policy_from_run_name(run_name, env_type) or "policy"
+    results = []
+    for entry in per_task:
+        successes = entry["metrics"]["successes"]
         group = str(entry["task_group"])
         task = run_name if group == env_type else group
         results.append(TaskResult(task=task, policy=policy, episodes=len(successes), successes=int(sum(map(bool, successes)))))
