@@ -94,9 +94,14 @@ class InstantPolicyConfig(PreTrainedConfig):
     paper's choice) rather than moving the encoded scene nodes rigidly into the action frames.
     ``dense_attention``: run σ's graph-transformer layers on the local graphs in a dense batched layout (the
     same weights and outputs as the torch-geometric ``TransformerConv`` layers, which ``False`` runs instead).
+    ``action_scene_graph``: the action gripper nodes run σ on the scene seen from their noisy poses (the paper's
+    graph); ``False`` is an ablation (issue 11) in which they see the scene only through the current nodes, so
+    every path from the scene to an action passes the demonstrations' φ.
 
-    Training: ``gripper_flip_probability`` of the current gripper state (the input only, never the label) being
-    flipped per sample; the loss is the translation and rotation flow errors plus ``gripper_loss_weight`` times the
+    Training: with ``cache_frame_encodings`` the frozen encoder's output for every frame of the training dataset is
+    computed once and stored beside the dataset (``frame_encodings``; rebuilt when the encoder or the dataset
+    changes), so training steps read scene nodes instead of encoding clouds. ``gripper_flip_probability`` of the
+    current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and rotation flow errors plus ``gripper_loss_weight`` times the
     gripper's binary cross-entropy; N is drawn per batch and capped at the fewest other episodes a row's task has
     (a demonstration never repeats in one context); AdamW with
     ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-4 for ``small``), linear warmup
@@ -131,6 +136,8 @@ class InstantPolicyConfig(PreTrainedConfig):
     pretrained_encoder: bool = True
     reencode_action_clouds: bool = True
     dense_attention: bool = True
+    action_scene_graph: bool = True
+    cache_frame_encodings: bool = True
 
     gripper_flip_probability: float = 0.1
     gripper_loss_weight: float = 0.1

@@ -4,8 +4,9 @@ Training (``lerobot-train``): every batch row is a frame of an episode with ``ob
 ``observation.state (8,)`` (world frame), the ``horizon`` actions ``action (T, 8)`` that follow it and its
 ``episode_index``. The policy draws one N in ``min_demos … max_demos`` per batch (so every row has the same graph)
 and, per row, N other episodes of the row's task from a :class:`ContextBank` it builds on the first ``forward`` from
-the training dataset's ``dataset_meta``. The bank and the cached frozen-encoder outputs of its waypoints are plain
-attributes, never part of ``model.safetensors``.
+the training dataset's ``dataset_meta``. The frozen encoder's output for every frame of that dataset is cached
+beside it (:mod:`.frame_encodings`), so a training step reads the scene nodes of its frames and of their context
+waypoints. The bank and the cache are plain attributes, never part of ``model.safetensors``.
 
 Evaluation (``lerobot-eval``) and deployment: the demonstrations of each batch row's ``task`` come from the
 dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :meth:`set_demonstrations`. Their
@@ -32,8 +33,9 @@ from torch import Tensor
 
 from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
 from .data.context_bank import ContextBank
-from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
+from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
 from .data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
 from .model.action_diffusion import invert_rigid, make_rigid
 from .model.geometry_encoder import encoder_preset
 from .model.instant_policy_network import InstantPolicyNetwork, InstantPolicyNetworkConfig
@@ -91,6 +93,7 @@ def network_config(config: InstantPolicyConfig) -> InstantPolicyNetworkConfig:
         reencode_action_clouds=config.reencode_action_clouds,
         gripper_loss_weight=config.gripper_loss_weight,
         dense_attention=config.dense_attention,
+        action_scene_graph=config.action_scene_graph,
         max_num_demos=SUPPORTED_DEMOS[1],
         max_demo_length=SUPPORTED_WAYPOINTS[1],
     )
@@ -128,6 +131,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             self.network.geometry_encoder.load_state_dict(encoder.state_dict())
         self._dataset_meta = dataset_meta
         self._training_bank: ContextBank | None = None
+        self._frame_encodings: FrameEncodings | None = None
         self._demo_contexts: dict[str, DemoContext] = {}
         self._demo_waypoints: dict[str, int] = {}  # L of the demonstrations handed in with set_demonstrations
         self._queue: deque[Tensor] = deque()
@@ -172,9 +176,15 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         available = int(bank.other_episode_counts(episodes).min())
         num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
         context_episodes = np.stack([bank.sample_context(int(episode), num_demos, rng) for episode in episodes])
-        demo_geometry = bank.encoded(context_episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
-        arrays = bank.gather(context_episodes)
         device = state.device
+        encodings = self.training_frame_encodings() if bank.has_dataset_indices else None
+        if encodings is not None:
+            demo_geometry = encodings.lookup(bank.dataset_indices(context_episodes), device)
+            scene_geometry = encodings.lookup(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
+        else:
+            demo_geometry = bank.encoded(context_episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
+            scene_geometry = None
+        arrays = bank.gather(context_episodes)
         context = self.network.encode_context(
             None,
             torch.from_numpy(arrays.T_world_ee).to(device),
@@ -183,6 +193,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             T_world_ee,
             gripper,
             demo_geometry=demo_geometry,
+            scene_geometry=scene_geometry,
         )
         losses = self.network.training_loss(context, T_ee_actions, action_gripper)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
@@ -298,6 +309,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         """Forget encoder outputs computed with the previous weights (training bank cache, demo contexts)."""
         if self._training_bank is not None:
             self._training_bank.clear_encoded()
+        self._frame_encodings = None
         self._demo_contexts.clear()
 
     # ------------------------------------------------------------------ context
@@ -312,8 +324,24 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             self.set_training_bank(ContextBank.from_dataset_meta(self._dataset_meta, self.config.num_waypoints))
         return self._training_bank
 
-    def set_training_bank(self, bank: ContextBank) -> None:
-        """Use ``bank`` for the training context (its waypoint count must be ``num_waypoints``)."""
+    def training_frame_encodings(self) -> FrameEncodings | None:
+        """The frozen encoder's output for every frame of the training dataset (``frame_encodings``), loaded from
+        beside the dataset or built there on first use; None without ``cache_frame_encodings`` or ``dataset_meta``."""
+        if self._frame_encodings is None and self.config.cache_frame_encodings and self._dataset_meta is not None:
+            root, repo_id = self._dataset_meta.root, self._dataset_meta.repo_id
+            fingerprint = encoder_fingerprint(self.network.geometry_encoder, self.network.config.encoder.to_dict())
+            encodings = load_frame_encodings(root, fingerprint)
+            if encodings is None:
+                logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
+                encodings = build_frame_encodings(
+                    open_demo_dataset(repo_id, root), fingerprint, self._encode_frames, self._device()
+                )
+            self._frame_encodings = encodings
+        return self._frame_encodings
+
+    def set_training_bank(self, bank: ContextBank, frame_encodings: FrameEncodings | None = None) -> None:
+        """Use ``bank`` for the training context (its waypoint count must be ``num_waypoints``), and
+        ``frame_encodings`` of the dataset it was read from for its waypoints and the batches' frames (``index``)."""
         if bank.num_waypoints != self.config.num_waypoints:
             raise ValueError(f"the bank has L={bank.num_waypoints} waypoints, the config {self.config.num_waypoints}")
         if bank.num_points != self.config.num_points:
@@ -321,7 +349,11 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 f"point clouds of the wrong size: the training dataset has {bank.num_points} points per cloud, the "
                 f"policy expects {self.config.num_points}"
             )
+        if frame_encodings is not None and not bank.has_dataset_indices:
+            raise ValueError("frame_encodings need a bank read from their dataset (ContextBank.from_dataset)")
         self._training_bank = bank
+        if frame_encodings is not None:
+            self._frame_encodings = frame_encodings
 
     def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None:
         """Use ``demonstrations`` (N of them, all of one task) as that task's context, each reduced to
@@ -364,6 +396,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             scene_positions=positions.to(device)[None],
             scene_features=features.to(device)[None],
         )
+
+    def _encode_frames(self, points_world: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
+        return self.network.encode_observation(points_world, poses_from_vectors(state))
 
     def _encode_clouds(self, points_ee: Tensor) -> tuple[Tensor, Tensor]:
         return self.network.encode_clouds(points_ee.to(self._device()))

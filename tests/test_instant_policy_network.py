@@ -1,6 +1,7 @@
 """Instant Policy network: presets, the five defects of the authors' code, SE(3) invariance, context reuse,
 variable context size, learning, and input errors."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -264,6 +265,29 @@ def test_cached_demo_geometry_gives_the_same_context():
         batch["gripper"], demo_geometry=geometry,
     )
     torch.testing.assert_close(cached.current_gripper_features, _context(network, batch).current_gripper_features)
+
+    # The live cloud's scene nodes given as encode_observation computes them (a frame-encoding cache) change nothing.
+    scene = network.encode_observation(batch["points_world"], batch["T_world_ee"])
+    from_cache = network.encode_context(
+        None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
+        batch["gripper"], demo_geometry=geometry, scene_geometry=scene,
+    )
+    torch.testing.assert_close(from_cache.current_gripper_features, cached.current_gripper_features)
+
+
+@pytest.mark.parametrize("action_scene_graph", [True, False])
+def test_without_the_action_scene_graph_actions_see_the_scene_only_through_the_current_nodes(action_scene_graph):
+    """The ablation ``action_scene_graph=False``: with φ's current nodes fixed, another scene changes nothing."""
+    network = _network(action_scene_graph=action_scene_graph, reencode_action_clouds=False)
+    batch = _batch()
+    context = _context(network, batch)
+    moved = dataclasses.replace(
+        context, scene_positions_ee=context.scene_positions_ee.flip(0), scene_features=context.scene_features.flip(0)
+    )
+    timesteps = torch.tensor([10, 60])
+    outputs = [network.denoise(c, batch["T_ee_actions"], batch["action_gripper"] * 2 - 1, timesteps)
+               for c in (context, moved)]
+    assert torch.equal(outputs[0], outputs[1]) != action_scene_graph
 
 
 # ---------------------------------------------------------------- learning

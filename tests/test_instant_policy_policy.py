@@ -190,7 +190,9 @@ def test_loss_falls_when_overfitting_a_tiny_dataset(tiny_dataset):
     # The frozen encoder never changes, and the training bank stays out of the state dict.
     assert not any(key.startswith("_training_bank") for key in policy.state_dict())
     assert all(not parameter.requires_grad for parameter in policy.network.geometry_encoder.parameters())
-    assert policy.training_bank().num_encoded == 3
+    # Every frame and waypoint came from the frame-encoding cache beside the dataset: the bank encoded nothing.
+    assert policy.training_frame_encodings() is not None
+    assert policy.training_bank().num_encoded == 0
 
 
 def test_gripper_flip_probability_changes_the_current_gripper_state(tiny_dataset, monkeypatch):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from synthetic_demos import make_demonstration, object_pose, write_demo_dataset
+from synthetic_demos import NUM_FRAMES, make_demonstration, object_pose, write_demo_dataset
 
 from lerobot_instant_policy.data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 
@@ -65,6 +65,10 @@ def test_train_writes_checkpoints_and_resume_continues(trained):
     assert at_20.keys() == at_22.keys()
     assert any(not torch.equal(at_20[key], at_22[key]) for key in at_20)
     assert not any("bank" in key for key in at_20)
+    # the frozen encoder's output for every frame was cached beside the dataset once; the resumed run reused it
+    (cache,) = (out.parent / "data" / "instant_policy_encodings").iterdir()
+    assert json.loads((cache / "meta.json").read_text())["dataset"]["total_frames"] == 4 * NUM_FRAMES
+    assert first_log.count("encoding every frame") == 1 and "encoding every frame" not in resumed_log
 
 
 def test_from_pretrained_on_the_checkpoint_predicts_actions(trained):

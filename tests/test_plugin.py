@@ -46,3 +46,15 @@ def test_generate_benchmark_prints_measured_json(capsys):
     assert result["benchmark"] == "generate"
     assert result["frames_per_s_one_worker"] > 0 and result["frames_per_s_total"] > 0
     assert len(result["runs_frames_per_s_one_worker"]) == 1
+
+
+def test_train_step_benchmark_compares_cached_and_live_frame_encodings(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
+                 "--compare-frame-cache", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["benchmark"] == "train-step" and result["figure"] == "samples_per_s"
+    assert len(result["runs_cached"]) == len(result["runs_live"]) == 3
+    assert min(result["runs_cached"] + result["runs_live"]) > 0
+    assert result["cached_over_live"] == round(result["cached"] / result["live"], 3)

@@ -6,7 +6,9 @@
 ``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
 ``lerobot-ip-bench inference --preset small|paper``: ``instant_policy`` milliseconds per control step (K=4, N=2,
 L=10, T=8, 2048 points, batch 1, demo context cached). ``lerobot-ip-bench train-step --preset small|paper``:
-training samples per second and peak RSS. Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
+training samples per second and peak RSS, with the frames' scene nodes read from frame encodings as
+``lerobot-train`` does (``--frame-cache false``: encoded live; ``--compare-frame-cache``: both, and their ratio).
+Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
 the torch-geometric reference layers) and ``--compare-dense-attention``, which times both in alternation in one run
 and reports their ratio.
 """
@@ -98,28 +100,42 @@ def main(argv: list[str] | None = None) -> int:
     train_step.add_argument("--batch-size", type=int, default=8)
     train_step.add_argument("--repeats", type=int, default=5)
     _add_variant_arguments(train_step)
+    train_step.add_argument("--frame-cache", choices=["true", "false"], default="true",
+                            help="scene nodes of every frame from precomputed frame encodings (lerobot-train's path)")
+    train_step.add_argument("--compare-frame-cache", action="store_true",
+                            help="time cached and live encoding in alternation and report the ratio")
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
     if args.command == "inference":
         if args.repeats <= 0:
             parser.error("--repeats must be positive")
-        from .bench_policy import bench_inference, compare_dense_attention
+        from .bench_policy import bench_inference, compare_variants
 
         def run(**dense):
             return bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path,
                                    **_overrides(args), **dense)
 
-        result = compare_dense_attention(run, "ms_per_control_step") if args.compare_dense_attention else run()
+        result = run()
+        if args.compare_dense_attention:
+            result = compare_variants(run, "ms_per_control_step", "dense_attention", ("dense", "reference"))
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size) <= 0:
             parser.error("--repeats and --batch-size must be positive")
-        from .bench_policy import bench_train_step, compare_dense_attention
+        if args.compare_dense_attention and args.compare_frame_cache:
+            parser.error("compare one variant at a time: --compare-dense-attention or --compare-frame-cache")
+        from .bench_policy import bench_train_step, compare_variants
 
-        def run(**dense):
+        def run(**variant):
+            frame_cache = {} if args.compare_frame_cache else {"frame_cache": args.frame_cache == "true"}
             return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_overrides(args),
-                                    **dense)
+                                    **frame_cache, **variant)
 
-        result = compare_dense_attention(run, "samples_per_s") if args.compare_dense_attention else run()
+        if args.compare_dense_attention:
+            result = compare_variants(run, "samples_per_s", "dense_attention", ("dense", "reference"))
+        elif args.compare_frame_cache:
+            result = compare_variants(run, "samples_per_s", "frame_cache", ("cached", "live"))
+        else:
+            result = run()
     elif args.command == "env":
         if min(args.steps, args.repeats) <= 0:
             parser.error("--steps and --repeats must be positive")

@@ -98,23 +98,28 @@ def bench_inference(
 
 
 def bench_train_step(
-    preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5, **overrides
+    preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5, frame_cache: bool = True,
+    **overrides,
 ) -> dict:
-    """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed, encoder cache warm),
-    and the process's peak resident memory."""
-    from ..modeling_instant_policy import InstantPolicyPolicy
+    """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed), and the process's peak
+    resident memory. With ``frame_cache`` every frame's scene nodes come from frame encodings computed beforehand, as
+    ``lerobot-train`` reads them from beside its dataset; without it, the live clouds are encoded at every step and
+    the context waypoints once (the bank's cache is warm before timing)."""
+    from ..frame_encodings import FrameEncodings
+    from ..modeling_instant_policy import InstantPolicyPolicy, poses_from_vectors
 
     config = _config(preset, min_demos=num_demos, max_demos=num_demos, **overrides)
     policy = InstantPolicyPolicy(config).to(config.device).train()
     rng = np.random.default_rng(0)
     L, P, T = config.num_waypoints, config.num_points, config.horizon
     episodes = 8
+    waypoint_state = np.tile(np.array([0, 0, 0, 0, 0, 0, 1, 1], np.float32), (L, 1))
     bank = ContextBank([
         EpisodeWaypoints(index, "bench", np.arange(L), rng.uniform(-0.1, 0.1, (L, P, 3)).astype(np.float32),
-                         np.tile(np.eye(4, dtype=np.float32), (L, 1, 1)), np.ones(L, np.float32))
+                         np.tile(np.eye(4, dtype=np.float32), (L, 1, 1)), np.ones(L, np.float32),
+                         np.arange(index * L, (index + 1) * L))
         for index in range(episodes)
     ])
-    policy.set_training_bank(bank)
     state = _pose_rows(rng, batch_size)
     actions = np.repeat(state[:, None], T, axis=1)
     actions[..., :3] += rng.normal(0.0, 0.005, size=(batch_size, T, 3)).astype(np.float32)
@@ -123,7 +128,17 @@ def bench_train_step(
         STATE_KEY: torch.from_numpy(state),
         ACTION_KEY: torch.from_numpy(actions),
         "episode_index": torch.from_numpy(rng.integers(0, episodes, batch_size)),
+        "index": torch.arange(episodes * L, episodes * L + batch_size),
     }
+    encodings = None
+    if frame_cache:  # frames 0 … E·L − 1: the bank's waypoints; then the batch rows
+        points = torch.cat([torch.from_numpy(bank.points_world.reshape(-1, P, 3)), batch[POINTCLOUD_KEY]])
+        states = torch.cat([torch.from_numpy(np.tile(waypoint_state, (episodes, 1))), batch[STATE_KEY]])
+        positions, features = policy.network.encode_observation(
+            points.to(config.device), poses_from_vectors(states.to(config.device))
+        )
+        encodings = FrameEncodings(None, positions.cpu().numpy(), features.cpu().numpy())
+    policy.set_training_bank(bank, frame_encodings=encodings)
     batch = {key: value.to(config.device) for key, value in batch.items()}
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=config.optimizer_lr)
 
@@ -135,7 +150,7 @@ def bench_train_step(
         if config.device == "cuda":
             torch.cuda.synchronize()
 
-    step()  # warm-up (fills the encoder cache of the bank)
+    step()  # warm-up (without frame encodings: fills the bank's encoder cache)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -144,28 +159,27 @@ def bench_train_step(
     return {
         "benchmark": "train-step", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "dense_attention": config.dense_attention, "batch": batch_size, "N": num_demos, "L": L, "T": T, "points": P,
-        "samples_per_s": round(batch_size / statistics.median(times), 2),
+        "dense_attention": config.dense_attention, "frame_cache": frame_cache, "batch": batch_size, "N": num_demos,
+        "L": L, "T": T, "points": P, "samples_per_s": round(batch_size / statistics.median(times), 2),
         "runs_s_per_step": [round(value, 3) for value in times],
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }
 
 
-def compare_dense_attention(run: Callable[..., dict], figure: str, rounds: int = 3) -> dict:
-    """``run(dense_attention=…)`` for the dense and the reference attention in alternation, ``rounds`` times each;
-    the medians of ``figure`` and their ratio (dense / reference) measured in this one run."""
+def compare_variants(run: Callable[..., dict], figure: str, option: str, names: tuple[str, str], rounds: int = 3) -> dict:
+    """``run(**{option: True})`` and ``run(**{option: False})`` in alternation, ``rounds`` times each; the medians of
+    ``figure`` under ``names`` (for True, for False) and their ratio, measured in this one run."""
     results = {True: [], False: []}
     for _ in range(rounds):
-        for dense in (True, False):
-            results[dense].append(run(dense_attention=dense))
-    dense_value = statistics.median(result[figure] for result in results[True])
-    reference_value = statistics.median(result[figure] for result in results[False])
+        for value in (True, False):
+            results[value].append(run(**{option: value}))
+    on, off = (statistics.median(result[figure] for result in results[value]) for value in (True, False))
     return {
         **{key: value for key, value in results[True][0].items()
-           if key not in (figure, "dense_attention") and not key.startswith("runs")},
+           if key not in (figure, option) and not key.startswith("runs")},
         "figure": figure, "rounds": rounds,
-        "dense": dense_value, "reference": reference_value,
-        "dense_over_reference": round(dense_value / reference_value, 3),
-        "runs_dense": [result[figure] for result in results[True]],
-        "runs_reference": [result[figure] for result in results[False]],
+        names[0]: on, names[1]: off,
+        f"{names[0]}_over_{names[1]}": round(on / off, 3),
+        f"runs_{names[0]}": [result[figure] for result in results[True]],
+        f"runs_{names[1]}": [result[figure] for result in results[False]],
     }

@@ -36,7 +36,8 @@ Encoded = torch.Tensor | tuple[torch.Tensor, ...]
 @dataclass(frozen=True)
 class EpisodeWaypoints:
     """One episode's waypoints. ``frame_indices (L,)`` within the episode; ``points_world (L, P, 3)`` float32 object
-    points, world frame; ``T_world_ee (L, 4, 4)`` float32 EE poses; ``gripper_open (L,)`` float32, 1 open, 0 closed."""
+    points, world frame; ``T_world_ee (L, 4, 4)`` float32 EE poses; ``gripper_open (L,)`` float32, 1 open, 0 closed;
+    ``dataset_indices (L,)`` the waypoint frames' global ``index`` in their dataset (None: not from a dataset)."""
 
     episode_index: int
     task: str
@@ -44,6 +45,7 @@ class EpisodeWaypoints:
     points_world: np.ndarray
     T_world_ee: np.ndarray
     gripper_open: np.ndarray
+    dataset_indices: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,11 @@ class ContextBank:
         self.points_world = np.stack([item.points_world for item in waypoints]).astype(np.float32, copy=False)
         self.T_world_ee = np.stack([item.T_world_ee for item in waypoints]).astype(np.float32, copy=False)
         self.gripper_open = np.stack([item.gripper_open for item in waypoints]).astype(np.float32, copy=False)
+        self._dataset_indices = np.stack([
+            np.full(len(item.frame_indices), -1, np.int64) if item.dataset_indices is None
+            else np.asarray(item.dataset_indices, dtype=np.int64)
+            for item in waypoints
+        ])
         self._row_of = {int(episode): row for row, episode in enumerate(self.episode_indices)}
         by_task: dict[str, list[int]] = {}
         for episode, task in zip(self.episode_indices.tolist(), self.task_of_row):
@@ -119,16 +126,20 @@ class ContextBank:
             chosen = _extract(T_world_ee, gripper_open, num_waypoints, stop, where)
             plans.append((episode, row["tasks"][0], chosen, start, T_world_ee[chosen], gripper_open[chosen]))
         rows = np.concatenate([start + chosen for _, _, chosen, start, _, _ in plans])
-        points = dataset.hf_dataset.select(rows).with_format("numpy", columns=[POINTCLOUD_KEY])[:][POINTCLOUD_KEY]
-        points = points.reshape(len(plans), num_waypoints, *points.shape[1:])
+        selected = dataset.hf_dataset.select(rows).with_format("numpy", columns=[POINTCLOUD_KEY, "index"])[:]
+        points = selected[POINTCLOUD_KEY].reshape(len(plans), num_waypoints, -1, 3)
+        dataset_indices = np.asarray(selected["index"], dtype=np.int64).reshape(len(plans), num_waypoints)
         waypoints = []
-        for (episode, task, chosen, _, T_world_ee, gripper_open), episode_points in zip(plans, points):
+        for plan, episode_points, indices in zip(plans, points, dataset_indices):
+            episode, task, chosen, _, T_world_ee, gripper_open = plan
             if not np.isfinite(episode_points).all():
                 raise DemonstrationError(
                     f"episode {episode} of the dataset at {dataset.root}: {POINTCLOUD_KEY} contains NaN or "
                     "infinite values"
                 )
-            waypoints.append(EpisodeWaypoints(episode, str(task), chosen, episode_points, T_world_ee, gripper_open))
+            waypoints.append(
+                EpisodeWaypoints(episode, str(task), chosen, episode_points, T_world_ee, gripper_open, indices)
+            )
         return cls(waypoints)
 
     @classmethod
@@ -183,6 +194,7 @@ class ContextBank:
             self.points_world[row],
             self.T_world_ee[row],
             self.gripper_open[row],
+            None if self._dataset_indices[row, 0] < 0 else self._dataset_indices[row],
         )
 
     def with_swapped_contexts(self) -> ContextBank:
@@ -225,6 +237,19 @@ class ContextBank:
         """The waypoints of ``episode_indices`` (an int array of any shape ``(...)``)."""
         rows = self._rows(episode_indices)
         return ContextArrays(self.points_world[rows], self.T_world_ee[rows], self.gripper_open[rows])
+
+    @property
+    def has_dataset_indices(self) -> bool:
+        """Whether every episode was read from a dataset, so its waypoints have global frame indices."""
+        return bool((self._dataset_indices >= 0).all())
+
+    def dataset_indices(self, episode_indices) -> np.ndarray:
+        """The waypoint frames' global dataset ``index`` ``(..., L)`` of ``episode_indices (...)``;
+        ``DemonstrationError`` for episodes that were not read from a dataset."""
+        indices = self._dataset_indices[self._rows(episode_indices)]
+        if (indices < 0).any():
+            raise DemonstrationError("these context episodes were handed in, not read from a dataset: no frame index")
+        return indices
 
     def points_ee(self, episode_index: int) -> np.ndarray:
         """``(L, P, 3)`` float32: each waypoint's object points in its own EE frame, ``R_WEᵀ (p − t_WE)``."""

@@ -73,6 +73,9 @@ class InstantPolicyNetworkConfig:
     ``dense_attention``: run σ (local graphs) and ψ (current → actions) in the dense layout of
     :meth:`HeteroGraphTransformer.forward_dense` (same weights and outputs as the PyG layers, faster); False runs the
     PyG reference layers.
+    ``action_scene_graph``: σ runs on every action's local graph (the scene seen from the noisy action, the paper's
+    graph); False gives the action gripper nodes only their keypoint, gripper and timestep embeddings, so they see
+    the scene through the current nodes alone (an ablation of the information paths).
     """
 
     hidden_dim: int = 128
@@ -94,6 +97,7 @@ class InstantPolicyNetworkConfig:
     reencode_action_clouds: bool = True
     gripper_loss_weight: float = 0.1
     dense_attention: bool = True
+    action_scene_graph: bool = True
     max_num_demos: int = 8
     max_demo_length: int = 32
 
@@ -268,6 +272,12 @@ class InstantPolicyNetwork(nn.Module):
             positions, features = self.geometry_encoder(points.reshape(-1, *points.shape[-2:]))
         return positions.view(*leading, *positions.shape[1:]), features.view(*leading, *features.shape[1:])
 
+    def encode_observation(self, points_world: torch.Tensor, T_world_ee: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The frozen encoder on observed clouds in their own EE frames: ``points_world (..., P, 3)`` and the EE poses
+        ``T_world_ee (..., 4, 4)`` → scene-node positions in the EE frame ``(..., M, 3)`` and features ``(..., M, D)``.
+        The one place a frame's cloud becomes scene nodes, live or for a cache (``frame_encodings``)."""
+        return self.encode_clouds(_transform_points(invert_rigid(T_world_ee), points_world))
+
     def observation_gripper_features(self, gripper_open: torch.Tensor) -> torch.Tensor:
         """Gripper-node features of observed frames: ``gripper_open (...)`` in {0, 1} → ``(..., K, H)``."""
         state = self.gripper_state_embedding((gripper_open > 0.5).long())
@@ -345,6 +355,7 @@ class InstantPolicyNetwork(nn.Module):
         T_world_ee: torch.Tensor,
         gripper: torch.Tensor,
         demo_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
+        scene_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> InstantPolicyContext:
         """Run everything that does not depend on the noisy actions: encoder, σ on demo and current graphs, φ.
 
@@ -356,6 +367,11 @@ class InstantPolicyNetwork(nn.Module):
             points_world: ``(B, P, 3)`` the live cloud in the world frame.
             T_world_ee: ``(B, 4, 4)`` the current EE pose in the world frame.
             gripper: ``(B,)`` the current gripper state, 1 open, 0 closed.
+            demo_geometry: the demo waypoints' scene nodes, each in its EE frame: positions ``(B, N, L, M, 3)`` and
+                features ``(B, N, L, M, D)``, e.g. from :meth:`encode_demo_geometry` or a cache.
+            scene_geometry: the live cloud's scene nodes in the current EE frame, positions ``(B, M, 3)`` and
+                features ``(B, M, D)`` as :meth:`encode_observation` gives them (e.g. from a cache); None encodes
+                ``points_world``.
         """
         if demo_T_world_ee.ndim != 5:
             raise ValueError(f"demo_T_world_ee must have shape (B, N, L, 4, 4), got {tuple(demo_T_world_ee.shape)}")
@@ -377,7 +393,11 @@ class InstantPolicyNetwork(nn.Module):
         self._check_tensor("demo scene features", demo_features, feature_shape)
 
         points_ee = _transform_points(invert_rigid(T_world_ee), points_world)
-        scene_positions, scene_features = self.encode_clouds(points_ee)
+        if scene_geometry is None:
+            scene_geometry = self.encode_clouds(points_ee)
+        scene_positions, scene_features = scene_geometry
+        self._check_tensor("scene positions", scene_positions, (batch, num_scene, 3))
+        self._check_tensor("scene features", scene_features, (batch, num_scene, self.config.encoder.feature_dim))
         positions = torch.cat([demo_positions.flatten(1, 2), scene_positions[:, None]], dim=1)
         features = torch.cat([demo_features.flatten(1, 2), scene_features[:, None]], dim=1)
         states = torch.cat([demo_gripper.flatten(1, 2), gripper[:, None]], dim=1)
@@ -428,16 +448,18 @@ class InstantPolicyNetwork(nn.Module):
         batch, horizon = context.batch_size, self.config.prediction_horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
         self._check_tensor("action_gripper", action_gripper, (batch, horizon))
-        if self.config.reencode_action_clouds:
-            scene_positions, scene_features = self.encode_clouds(points_in_action_frames(context.points_ee, T_ee_actions))
-        else:
-            scene_positions = points_in_action_frames(context.scene_positions_ee, T_ee_actions)
-            scene_features = context.scene_features[:, None].expand(-1, horizon, -1, -1)
-        gripper_features = self._local_gripper_features(
-            scene_positions.flatten(0, 1),
-            scene_features.flatten(0, 1),
-            self.action_gripper_features(action_gripper, timesteps).flatten(0, 1),
-        ).view(batch, horizon * self.num_keypoints, -1)
+        gripper_features = self.action_gripper_features(action_gripper, timesteps)
+        if self.config.action_scene_graph:
+            if self.config.reencode_action_clouds:
+                points_actions = points_in_action_frames(context.points_ee, T_ee_actions)
+                scene_positions, scene_features = self.encode_clouds(points_actions)
+            else:
+                scene_positions = points_in_action_frames(context.scene_positions_ee, T_ee_actions)
+                scene_features = context.scene_features[:, None].expand(-1, horizon, -1, -1)
+            gripper_features = self._local_gripper_features(
+                scene_positions.flatten(0, 1), scene_features.flatten(0, 1), gripper_features.flatten(0, 1)
+            )
+        gripper_features = gripper_features.reshape(batch, horizon * self.num_keypoints, -1)
         actions = self._action_features(context, T_ee_actions, gripper_features)
         out = torch.cat([self.translation_head(actions), self.rotation_head(actions), self.gripper_head(actions)], -1)
         return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1)
