@@ -163,6 +163,9 @@ def build_frame_encodings(
                 )
             positions[start : start + len(points)] = chunk_positions.float().cpu().numpy()
             features[start : start + len(points)] = chunk_features.float().cpu().numpy()
+            done = start + len(points)
+            if done * 10 // frames > start * 10 // frames:
+                logger.info("instant_policy: encoded %d / %d frames (%.0f s)", done, frames, time.perf_counter() - started)
         positions.flush()
         features.flush()
         meta = {
