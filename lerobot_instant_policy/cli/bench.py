@@ -1,7 +1,10 @@
 """``lerobot-ip-bench``: measured speed of the project's parts, printed as JSON.
 
 ``lerobot-ip-bench generate``: rendered pseudo-demonstration frames per second, for one worker process and for
-``--workers`` processes at once (medians over ``--repeats`` runs), and demonstrations per second.
+``--workers`` processes at once (medians over ``--repeats`` runs), and demonstrations per second. With
+``--merge-tasks K``: also frames per second end to end (``generate_dataset``: render, write shards, merge) of K tasks
+with one worker and with ``--workers``, and, on the same shards, LeRobot's serial ``aggregate_datasets`` against the
+parallel merge (in one process, and with a warm pool of ``--workers``), medians and ratios.
 ``lerobot-ip-bench encoder``: geometry-encoder clouds per second at 2048 points, batch 1 and 16, both presets.
 ``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
 ``lerobot-ip-bench inference --preset small|paper``: ``instant_policy`` milliseconds per control step (K=4, N=2,
@@ -42,8 +45,9 @@ def _generate_worker(job: tuple[int, int, int]) -> tuple[int, int, float]:
     return frames, demos, time.perf_counter() - start
 
 
-def bench_generate(tasks: int, workers: int, repeats: int) -> dict:
-    """Frames/s and demos/s of rendering pseudo-demonstrations (sampling, replay, rendering, resampling)."""
+def bench_generate(tasks: int, workers: int, repeats: int, merge_tasks: int = 0, tasks_per_shard: int = 2) -> dict:
+    """Frames/s and demos/s of rendering pseudo-demonstrations (sampling, replay, rendering, resampling); with
+    ``merge_tasks`` > 0 also the end-to-end and merge figures of :func:`_bench_end_to_end` under ``"end_to_end"``."""
     context = multiprocessing.get_context("spawn")
     single, parallel, parallel_demos, single_demos = [], [], [], []
     with context.Pool(workers) as pool:
@@ -56,7 +60,7 @@ def bench_generate(tasks: int, workers: int, repeats: int) -> dict:
             wall = time.perf_counter() - start
             parallel.append(sum(result[0] for result in results) / wall)
             parallel_demos.append(sum(result[1] for result in results) / wall)
-    return {
+    result = {
         "benchmark": "generate",
         "tasks_per_run": tasks,
         "demos_per_task": 2,
@@ -71,6 +75,62 @@ def bench_generate(tasks: int, workers: int, repeats: int) -> dict:
         "runs_frames_per_s_one_worker": [round(value, 1) for value in single],
         "runs_frames_per_s_total": [round(value, 1) for value in parallel],
     }
+    if merge_tasks > 0:
+        result["end_to_end"] = _bench_end_to_end(merge_tasks, tasks_per_shard, workers, repeats)
+    return result
+
+
+def _bench_end_to_end(tasks: int, tasks_per_shard: int, workers: int, repeats: int) -> dict:
+    """``generate_dataset`` of ``tasks`` tasks (2 demos each) with 1 and ``workers`` workers (frames/s, render + merge,
+    process start-up included), then merges of the last run's shards: LeRobot's serial ``aggregate_datasets``
+    (``merge_serial``), ``merge_parallel`` in this process, and ``merge_parallel`` with a warm pool of ``workers``."""
+    import tempfile
+    from pathlib import Path
+
+    from ..data.generation import GenerationConfig, generate_dataset, shard_dir, shard_ranges, shard_repo_id
+    from ..data.merge import merge_parallel, merge_serial
+
+    end_to_end: dict[int, list[float]] = {1: [], workers: []}
+    merges: dict[str, list[float]] = {"serial": [], "parallel_one_process": [], "parallel_pool": []}
+    with tempfile.TemporaryDirectory(prefix="bench-merge-") as scratch:
+        for repeat in range(repeats):
+            for count in end_to_end:
+                config = GenerationConfig(out=f"{scratch}/e2e-{repeat}-{count}", repo_id="local/bench", num_tasks=tasks,
+                                          demos_per_task=2, tasks_per_shard=tasks_per_shard, seed=repeat, workers=count)
+                start = time.perf_counter()
+                out = generate_dataset(config, keep_shards=True, progress=False)
+                seconds = time.perf_counter() - start
+                frames = json.loads((out / "meta" / "info.json").read_text())["total_frames"]
+                end_to_end[count].append(frames / seconds)
+        shards = [shard_dir(config, index) for index in range(len(shard_ranges(config)))]
+        repo_ids = [shard_repo_id(config, index) for index in range(len(shards))]
+        with multiprocessing.get_context("spawn").Pool(min(workers, len(shards))) as pool:
+            for repeat in range(-1, repeats):  # round -1 warms the workers' imports and the file cache, untimed
+                for name, merge in (
+                    ("serial", lambda root: merge_serial(shards, repo_ids, "local/bench", root)),
+                    ("parallel_one_process", lambda root: merge_parallel(shards, repo_ids, "local/bench", root)),
+                    ("parallel_pool", lambda root: merge_parallel(shards, repo_ids, "local/bench", root, pool)),
+                ):
+                    start = time.perf_counter()
+                    merge(Path(scratch) / f"merge-{repeat}-{name}")
+                    if repeat >= 0:
+                        merges[name].append(time.perf_counter() - start)
+    median = {name: statistics.median(values) for name, values in merges.items()}
+    return {
+        "tasks": tasks,
+        "frames": frames,
+        "shards": len(shards),
+        "frames_per_s_one_worker": round(statistics.median(end_to_end[1]), 1),
+        "frames_per_s_workers": round(statistics.median(end_to_end[workers]), 1),
+        "speedup_workers_over_one": round(statistics.median(end_to_end[workers]) / statistics.median(end_to_end[1]), 2),
+        "merge_s_serial_lerobot": round(median["serial"], 3),
+        "merge_s_parallel_one_process": round(median["parallel_one_process"], 3),
+        "merge_s_parallel_pool": round(median["parallel_pool"], 3),
+        "merge_speedup_one_process": round(median["serial"] / median["parallel_one_process"], 2),
+        "merge_speedup_pool": round(median["serial"] / median["parallel_pool"], 2),
+        "runs_merge_s": {name: [round(value, 3) for value in values] for name, values in merges.items()},
+        "runs_frames_per_s": {str(count): [round(value, 1) for value in values] for count, values in end_to_end.items()},
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,6 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     generate.add_argument("--tasks", type=int, default=3, help="pseudo-tasks (2 demos each) per worker and run")
     generate.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     generate.add_argument("--repeats", type=int, default=3)
+    generate.add_argument("--merge-tasks", type=int, default=0,
+                          help="also generate this many tasks end to end (render + merge) and time the merges")
+    generate.add_argument("--tasks-per-shard", type=int, default=2, help="shard size of the --merge-tasks runs")
     generate.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     encoder = commands.add_parser("encoder", help="geometry encoder clouds per second (2048 points, CPU)")
     encoder.add_argument("--repeats", type=int, default=5)
@@ -149,9 +212,9 @@ def main(argv: list[str] | None = None) -> int:
 
         result = bench_encoder(repeats=args.repeats)
     elif args.command == "generate":
-        if min(args.tasks, args.workers, args.repeats) <= 0:
-            parser.error("--tasks, --workers and --repeats must be positive")
-        result = bench_generate(args.tasks, args.workers, args.repeats)
+        if min(args.tasks, args.workers, args.repeats, args.tasks_per_shard) <= 0 or args.merge_tasks < 0:
+            parser.error("--tasks, --workers, --repeats and --tasks-per-shard must be positive, --merge-tasks >= 0")
+        result = bench_generate(args.tasks, args.workers, args.repeats, args.merge_tasks, args.tasks_per_shard)
     print(json.dumps(result, indent=None if args.json else 2))
     return 0
 
