@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo pseudo-demos train-data train ladder results results-suite results-study eval-suite test install clean
+.PHONY: demo pseudo-demos train-data train ladder results results-suite results-study eval-suite perception-eval test install clean
 
 install: $(INSTALLED)
 
@@ -69,6 +69,14 @@ ladder: $(INSTALLED)
 		--wandb.enable=false --output_dir=$(LADDER_DIR))
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-action-error --policy-path $(LADDER_DIR)/checkpoints/last/pretrained_model \
 		--root outputs/$(RUNG_NAME)_val --tasks 12 --frames-per-task 4 --K 4 --N 2 --L 10 --json
+
+# docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
+# every task, 10 episodes each (issue 14's RGB-D vs segmented table).
+perception-eval: $(INSTALLED)
+	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy demo_replay --episodes 10 \
+		--out outputs/perception_eval --run-name segmented
+	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy demo_replay --obs-type rgbd --episodes 10 \
+		--out outputs/perception_eval --run-name rgbd
 
 # docs/results.md: every task, 20 episodes, N=2, for the three policies; then the K / N / L study on STUDY_TASKS.
 CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy

@@ -8,6 +8,12 @@ evaluation scenes differ from the demonstrations), then print the per-task succe
   lerobot-ip-eval-suite --policy demo_replay --episodes 10 --out outputs/eval_suite
   lerobot-ip-eval-suite --policy instant_policy --policy-path CKPT/pretrained_model --tasks open_drawer,push_button
   lerobot-ip-eval-suite --policy do_nothing --episodes 10 --out outputs/eval_suite   (no demonstrations recorded)
+  lerobot-ip-eval-suite --policy demo_replay --obs-type rgbd --env-arg depth_noise_std=0.002 --run-name noisy
+
+``--obs-type rgbd`` runs the real-robot path: demonstrations are recorded as raw depth + joint states and
+converted with ``lerobot-ip-convert``'s pipeline, and the env hands out depth only (``--env.obs_type=rgbd``), which
+its env preprocessor turns into segmented clouds. ``--env-arg KEY=VALUE`` sets ``--env.KEY=VALUE`` (sensor noise,
+calibration error) for the evaluation only; demonstrations are always recorded clean.
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ class SuiteSettings:
     task_module: str | None = None
     policy_args: tuple[str, ...] = ()
     run_name: str | None = None
+    obs_type: str = "pointcloud"
+    env_args: tuple[str, ...] = ()
 
     @property
     def runs_dir(self) -> Path:
@@ -51,16 +59,48 @@ class SuiteSettings:
         return self.out / "runs" / (self.run_name or self.policy)
 
 
-def parse_policy_arg(text: str) -> str:
+def parse_policy_arg(text: str, prefix: str = "policy") -> str:
     """``KEY=VALUE`` → ``--policy.KEY=VALUE`` (a policy config field overridden for the evaluation)."""
     key, separator, value = text.partition("=")
     if not separator or not key or not value or not key.replace("_", "").replace(".", "").isalnum():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with a policy config field as KEY, got {text!r}")
-    return f"--policy.{key}={value}"
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with a {prefix} config field as KEY, got {text!r}")
+    return f"--{prefix}.{key}={value}"
 
 
-def demo_root(out: Path, task: str, num_demos: int, demo_seed: int) -> Path:
-    return out / "demos" / f"{task}-n{num_demos}-s{demo_seed}"
+def parse_env_arg(text: str) -> str:
+    """``KEY=VALUE`` → ``--env.KEY=VALUE`` (an env config field set for the evaluation)."""
+    return parse_policy_arg(text, prefix="env")
+
+
+def demo_root(out: Path, task: str, num_demos: int, demo_seed: int, obs_type: str = "pointcloud") -> Path:
+    """Where the demonstrations read by the policy live; for ``rgbd`` the converted dataset (the raw recording
+    sits beside it, ``...-rgbd-raw``)."""
+    suffix = "" if obs_type == "pointcloud" else f"-{obs_type}"
+    return out / "demos" / f"{task}-n{num_demos}-s{demo_seed}{suffix}"
+
+
+def record_rgbd_demos(settings: SuiteSettings, task: str, demos: Path) -> None:
+    """Record raw depth demonstrations of ``task`` and convert them (robot removed by its joint state) to ``demos``."""
+    from ..sim.robot import JOINT_NAMES, low_poly_panda_urdf
+    from .convert import ConvertSettings, convert
+    from .record_demos import JOINT_POSITIONS_KEY
+
+    raw = demos.with_name(demos.name + "-raw")
+    record(task, settings.num_demos, raw, f"local/{task}-raw", settings.demo_seed, overwrite=True,
+           task_module=settings.task_module, obs_type="rgbd")
+    convert(
+        ConvertSettings(
+            input_root=raw,
+            input_repo_id=f"local/{task}-raw",
+            out=demos,
+            repo_id=f"local/{task}",
+            action_source="dataset",
+            urdf=low_poly_panda_urdf(),
+            joint_key=JOINT_POSITIONS_KEY,
+            joint_names=list(JOINT_NAMES),
+            overwrite=True,
+        )
+    )
 
 
 def lerobot_eval_command(
@@ -75,6 +115,7 @@ def lerobot_eval_command(
     output_dir: Path,
     task_module: str | None = None,
     policy_args: tuple[str, ...] = (),
+    env_args: tuple[str, ...] = (),
 ) -> list[str]:
     """The ``lerobot-eval`` command line for one task."""
     command = [
@@ -92,14 +133,17 @@ def lerobot_eval_command(
     command.insert(3, f"--policy.path={policy_path}" if policy_path else f"--policy.type={policy}")
     if task_module:
         command.append(f"--env.task_module={task_module}")
-    return command + list(policy_args)
+    return command + list(policy_args) + list(env_args)
 
 
 def run_task(settings: SuiteSettings, task: str) -> Path:
     """Record (or reuse) the demonstrations of ``task`` if the policy reads them, and evaluate; returns the
     lerobot-eval output dir."""
-    demos = demo_root(settings.out, task, settings.num_demos, settings.demo_seed)
-    if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
+    demos = demo_root(settings.out, task, settings.num_demos, settings.demo_seed, settings.obs_type)
+    needs_demos = settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file()
+    if needs_demos and settings.obs_type == "rgbd":
+        record_rgbd_demos(settings, task, demos)
+    elif needs_demos:
         record(
             task,
             settings.num_demos,
@@ -124,6 +168,7 @@ def run_task(settings: SuiteSettings, task: str) -> Path:
         output_dir,
         settings.task_module,
         settings.policy_args,
+        settings.env_args + ((f"--env.obs_type={settings.obs_type}",) if settings.obs_type != "pointcloud" else ()),
     )
     started = time.perf_counter()
     completed = subprocess.run(command, capture_output=True, text=True)
@@ -158,6 +203,19 @@ def build_parser(prog: str = "lerobot-ip-eval-suite") -> argparse.ArgumentParser
         metavar="KEY=VALUE",
         help="override a policy config field, e.g. inference_steps=8 (repeatable; passed as --policy.KEY=VALUE)",
     )
+    parser.add_argument(
+        "--obs-type", choices=("pointcloud", "rgbd"), default="pointcloud",
+        help="segmented clouds from the simulator, or raw depth through the perception pipeline",
+    )
+    parser.add_argument(
+        "--env-arg",
+        dest="env_args",
+        type=parse_env_arg,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="set an env config field for the evaluation, e.g. depth_noise_std=0.002 (repeatable; --env.KEY=VALUE)",
+    )
     parser.add_argument("--run-name", help="name of this run's folder under OUT/runs and of its table (default: the policy)")
     return parser
 
@@ -187,6 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         tasks = resolve_tasks(args.tasks, args.task_module)
         args.policy_args = tuple(args.policy_args)
+        args.env_args = tuple(args.env_args)
         settings = SuiteSettings(**{field.name: getattr(args, field.name) for field in fields(SuiteSettings)})
         runs = [run_task(settings, task) for task in tasks]
     except (ValueError, RuntimeError, FileExistsError) as error:
@@ -194,11 +253,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     name = settings.run_name or settings.policy
     results = collect_results([f"{name}={run}" for run in runs], None, "bullet_tabletop")
-    table_path = args.out / f"success_table_{name}"
-    table_path.with_suffix(".json").write_text(json.dumps(results_json(results), indent=2) + "\n")
-    save_bar_chart(results, table_path.with_suffix(".png"), title=f"bullet_tabletop: {name}, success per task")
+    json_path, png_path = args.out / f"success_table_{name}.json", args.out / f"success_table_{name}.png"
+    json_path.write_text(json.dumps(results_json(results), indent=2) + "\n")
+    save_bar_chart(results, png_path, title=f"bullet_tabletop: {name}, success per task")
     print(format_table(results))
-    print(f"\nwrote {table_path.with_suffix('.json')} and {table_path.with_suffix('.png')}")
+    print(f"\nwrote {json_path} and {png_path}")
     return 0
 
 

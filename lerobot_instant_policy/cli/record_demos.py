@@ -8,6 +8,11 @@ Recorded datasets follow DESIGN §4 exactly (``observation.pointcloud``, ``obser
 before the action, ``action`` = the commanded EE target, ``task`` = the task name, 10 fps);
 ``--with-images`` adds an ``observation.images.scene`` RGB render for viewing. Only successful demonstrations
 are written: a failed seed is skipped and the next one tried (at most ``--max-attempts`` seeds per episode).
+
+``--obs-type rgbd`` records what a robot with depth cameras records instead of the segmented cloud: one raw
+depth image per camera (``observation.images.camera<i>_depth``, uint16 millimetres, a LeRobot depth feature whose
+``info`` carries the camera's calibration), ``observation.joint_positions (9,)``, ``observation.state`` and
+``action``; ``lerobot-ip-convert`` turns it into the data contract.
 """
 
 from __future__ import annotations
@@ -21,6 +26,64 @@ from pathlib import Path
 import numpy as np
 
 IMAGE_KEY = "observation.images.scene"
+JOINT_POSITIONS_KEY = "observation.joint_positions"
+
+
+def depth_key(camera_index: int) -> str:
+    return f"observation.images.camera{camera_index}_depth"
+
+
+def rgbd_features(env) -> dict[str, dict]:
+    """LeRobot features of an rgbd recording of ``env``: state, action, joint state, one depth image per camera
+    (uint16 mm, flagged ``is_depth_map``, with its ``camera_calibration`` in ``info``)."""
+    from ..data.lerobot_format import ACTION_KEY, STATE_KEY, contract_features
+    from ..perception.calibration import CALIBRATION_INFO_KEY, CameraCalibration
+    from ..sim.robot import JOINT_NAMES
+
+    contract = contract_features()
+    features = {
+        STATE_KEY: contract[STATE_KEY],
+        ACTION_KEY: contract[ACTION_KEY],
+        JOINT_POSITIONS_KEY: {"dtype": "float32", "shape": (len(JOINT_NAMES),), "names": list(JOINT_NAMES)},
+    }
+    width, height = env.config.depth_resolution
+    for index, (intrinsics, pose) in enumerate(zip(env.camera_intrinsics(), env.camera_poses(), strict=True)):
+        entry = {
+            "name": f"camera{index}",
+            "width": width,
+            "height": height,
+            "fx": float(intrinsics[0, 0]),
+            "fy": float(intrinsics[1, 1]),
+            "cx": float(intrinsics[0, 2]),
+            "cy": float(intrinsics[1, 2]),
+            "T_world_camera": pose.tolist(),
+            "depth_unit": "mm",
+        }
+        CameraCalibration.from_dict(entry, where=f"{env.task} camera {index}")  # checked before recording
+        features[depth_key(index)] = {
+            "dtype": "image",
+            "shape": (height, width, 1),
+            "names": ["height", "width", "channels"],
+            "info": {"is_depth_map": True, "depth_unit": "mm", CALIBRATION_INFO_KEY: entry},
+        }
+    return features
+
+
+def _write_rgbd(dataset, episode) -> None:
+    from ..data.lerobot_format import ACTION_KEY, STATE_KEY
+
+    for index in range(episode.num_frames):
+        frame = {
+            STATE_KEY: np.ascontiguousarray(episode.state[index], dtype=np.float32),
+            ACTION_KEY: np.ascontiguousarray(episode.action[index], dtype=np.float32),
+            JOINT_POSITIONS_KEY: np.ascontiguousarray(episode.joint_positions[index], dtype=np.float32),
+            "task": episode.task,
+        }
+        for camera, depth in enumerate(episode.depth[index]):
+            millimetres = np.round(depth * 1000.0).clip(0, np.iinfo(np.uint16).max).astype(np.uint16)
+            frame[depth_key(camera)] = millimetres[:, :, None]
+        dataset.add_frame(frame)
+    dataset.save_episode()
 
 
 def record(
@@ -33,24 +96,32 @@ def record(
     overwrite: bool = False,
     task_module: str | None = None,
     max_attempts: int = 5,
+    obs_type: str = "pointcloud",
 ) -> dict:
-    """Record ``episodes`` successful scripted demonstrations of ``task`` (seeds ``seed``, ``seed + 1``, …)."""
+    """Record ``episodes`` successful scripted demonstrations of ``task`` (seeds ``seed``, ``seed + 1``, …);
+    ``obs_type="rgbd"`` records raw depth and joint states instead of segmented clouds (module docstring)."""
     from ..data.lerobot_format import (
         DEFAULT_FPS,
         contract_features,
         create_dataset,
         write_episode,
     )
-    from ..sim.env import BulletTabletopEnv
+    from ..sim.env import BulletTabletopConfig, BulletTabletopEnv
     from ..sim.rollout import run_episode
 
+    if with_images and obs_type == "rgbd":
+        raise ValueError("--with-images records segmented-cloud datasets only; rgbd recordings hold depth images")
     if out.exists():
         if not overwrite:
             raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
         shutil.rmtree(out)
-    env = BulletTabletopEnv(task, task_module=task_module)
+    env = BulletTabletopEnv(task, BulletTabletopConfig(obs_type=obs_type), task_module=task_module)
     try:
-        if with_images:
+        if obs_type == "rgbd":
+            from lerobot.datasets import LeRobotDataset
+
+            dataset = LeRobotDataset.create(repo_id, fps=DEFAULT_FPS, features=rgbd_features(env), root=out, use_videos=False)
+        elif with_images:
             from lerobot.datasets import LeRobotDataset
 
             height, width = env.config.render_size[1], env.config.render_size[0]
@@ -70,6 +141,9 @@ def record(
             episode = run_episode(env, next_seed, "scripted", with_images=with_images)
             if not episode.success:
                 failed.append(next_seed)
+            elif obs_type == "rgbd":
+                _write_rgbd(dataset, episode)
+                recorded.append(next_seed)
             elif with_images:
                 _write_with_images(dataset, episode)
                 recorded.append(next_seed)
@@ -148,6 +222,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--with-images", action="store_true", help=f"also write an RGB '{IMAGE_KEY}' key")
     parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    parser.add_argument(
+        "--obs-type", choices=("pointcloud", "rgbd"), default="pointcloud", help="segmented clouds or raw depth + joints"
+    )
     parser.add_argument("--max-attempts", type=int, default=5, help="seeds tried per episode before giving up")
     parser.add_argument("--json", action="store_true", help="print JSON (--check, recording)")
     args = parser.parse_args(argv)
@@ -193,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
             overwrite=args.overwrite,
             task_module=args.task_module,
             max_attempts=args.max_attempts,
+            obs_type=args.obs_type,
         )
     except (ValueError, FileExistsError, RuntimeError) as error:
         print(f"lerobot-ip-record-demos: error: {error}", file=sys.stderr)

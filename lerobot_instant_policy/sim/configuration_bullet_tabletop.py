@@ -4,6 +4,11 @@
 LeRobot turns the env observation ``agent_pos`` into ``observation.state`` (B, 8) and ``pointcloud`` into
 ``observation.pointcloud`` (B, 2048, 3); the action feature is (8,), DESIGN §4. This module stays light: the
 simulator is imported only when envs are created.
+
+``--env.obs_type=rgbd`` makes the env hand out depth images, camera parameters and the joint state instead of
+the segmented cloud; its env preprocessor (``get_env_processors``) then builds ``observation.pointcloud`` with
+the perception steps of ``lerobot_instant_policy.perception`` (no segmentation from the simulator), so the
+features a policy sees are the same in both modes.
 """
 
 from __future__ import annotations
@@ -34,7 +39,10 @@ class BulletTabletopEnvConfig(EnvConfig):
 
     ``task_module``: a module to import first, where user tasks are registered (``sim.task_api``).
     ``episode_length``: step limit; ``None`` uses the task's own. ``max_translation_step`` (m) and
-    ``max_rotation_step_deg`` bound how far one action moves the EE.
+    ``max_rotation_step_deg`` bound how far one action moves the EE. ``obs_type``: ``pointcloud`` (segmented by
+    the simulator) or ``rgbd`` (depth ``depth_width`` x ``depth_height`` from three cameras, segmented by the
+    perception pipeline); ``depth_noise_std`` (m), ``calibration_error_translation`` (m) and
+    ``calibration_error_rotation_deg`` degrade the ``rgbd`` observations (``sim.env``).
     """
 
     task: str | None = "pick_and_lift"
@@ -45,6 +53,12 @@ class BulletTabletopEnvConfig(EnvConfig):
     max_translation_step: float = 0.02
     max_rotation_step_deg: float = 6.0
     render_size: int = 256
+    obs_type: str = "pointcloud"
+    depth_width: int = 240
+    depth_height: int = 180
+    depth_noise_std: float = 0.0
+    calibration_error_translation: float = 0.0
+    calibration_error_rotation_deg: float = 0.0
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(
         default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "pointcloud": POINTCLOUD_FEATURE}
@@ -53,6 +67,8 @@ class BulletTabletopEnvConfig(EnvConfig):
     def __post_init__(self):
         if self.num_points <= 0 or self.render_size <= 0 or self.fps <= 0:
             raise ValueError("num_points, render_size and fps must be positive")
+        if self.obs_type not in ("pointcloud", "rgbd"):
+            raise ValueError(f"obs_type must be 'pointcloud' or 'rgbd', got {self.obs_type!r}")
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(8,)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(8,)),
@@ -68,7 +84,22 @@ class BulletTabletopEnvConfig(EnvConfig):
             "max_translation_step": self.max_translation_step,
             "max_rotation_step_deg": self.max_rotation_step_deg,
             "render_size": (self.render_size, self.render_size),
+            "obs_type": self.obs_type,
+            "depth_resolution": (self.depth_width, self.depth_height),
+            "depth_noise_std": self.depth_noise_std,
+            "calibration_error_translation": self.calibration_error_translation,
+            "calibration_error_rotation_deg": self.calibration_error_rotation_deg,
         }
+
+    def get_env_processors(self):
+        """Identity in ``pointcloud`` mode; in ``rgbd`` mode the perception pipeline (depth → segmented cloud)."""
+        from lerobot.processor import PolicyProcessorPipeline
+
+        if self.obs_type == "pointcloud":
+            return PolicyProcessorPipeline(steps=[]), PolicyProcessorPipeline(steps=[])
+        from ..perception.pipeline import make_perception_pipeline
+
+        return make_perception_pipeline(rgbd_perception_config(self.num_points)), PolicyProcessorPipeline(steps=[])
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
         import gymnasium as gym
@@ -88,3 +119,20 @@ class BulletTabletopEnvConfig(EnvConfig):
         else:
             vector_env = gym.vector.SyncVectorEnv(env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
         return {self.task: {0: vector_env}}
+
+
+def rgbd_perception_config(num_points: int = 2048):
+    """The perception settings for ``bullet_tabletop``'s rgbd observations: the env's workspace box (down to just
+    below the table top, so that RANSAC sees the table), the Panda removed by its joint state."""
+    from ..perception.pipeline import PerceptionConfig
+    from .env import BulletTabletopConfig
+    from .robot import JOINT_NAMES, low_poly_panda_urdf
+
+    workspace = BulletTabletopConfig()
+    return PerceptionConfig(
+        num_points=num_points,
+        workspace_low=(workspace.workspace_low[0], workspace.workspace_low[1], -0.05),
+        workspace_high=tuple(workspace.workspace_high),
+        robot_urdf=low_poly_panda_urdf(),
+        robot_joint_names=list(JOINT_NAMES),
+    )

@@ -6,9 +6,18 @@ command (≥ 0.5 open, < 0.5 close), DESIGN §4. A target outside the workspace 
 current EE pose is moved toward it by that much (``info["step_clipped"]``); the arm follows through inverse
 kinematics over ``physics_substeps`` physics steps of 1/240 s.
 
-Observations: ``pointcloud (num_points, 3)`` float32, world frame, the task objects only (segmentation masks of
-three depth cameras, fused and farthest-point resampled), and ``agent_pos (8,)`` float32, the EE pose (xyz,
-quaternion xyzw, w ≥ 0) and the gripper state (1 open, 0 closed; the last gripper command).
+Observations (``obs_type="pointcloud"``, the default): ``pointcloud (num_points, 3)`` float32, world frame, the
+task objects only (segmentation masks of three depth cameras, fused and farthest-point resampled), and
+``agent_pos (8,)`` float32, the EE pose (xyz, quaternion xyzw, w ≥ 0) and the gripper state (1 open, 0 closed;
+the last gripper command).
+
+``obs_type="rgbd"`` hands out what a robot with depth cameras has, and no segmentation: ``depth (C, H, W)``
+float32 metres along each camera's optical axis (0: no return), ``intrinsics (C, 3, 3)`` and ``T_world_camera
+(C, 4, 4)`` (OpenCV camera frame, ``perception.calibration``), ``joint_positions (9,)`` (7 arm joints, 2 fingers,
+rad / m) and ``agent_pos``. ``depth_noise_std`` (m) adds Gaussian noise to every return;
+``calibration_error_translation`` (m) and ``calibration_error_rotation_deg`` perturb the *reported*
+``T_world_camera`` of each camera by exactly that much (random direction and axis, drawn at reset), while the
+images are rendered from the true poses.
 """
 
 from __future__ import annotations
@@ -37,6 +46,8 @@ from .task_api import Task, get_task
 
 PHYSICS_TIMESTEP = 1.0 / 240.0
 SETTLE_STEPS = 48
+OBS_TYPES = ("pointcloud", "rgbd")
+_GL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 @dataclass
@@ -54,8 +65,19 @@ class BulletTabletopConfig:
     episode_length: int | None = None
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
     robot: RobotConfig = field(default_factory=RobotConfig)
+    obs_type: str = "pointcloud"
+    depth_resolution: tuple[int, int] = (240, 180)
+    depth_noise_std: float = 0.0
+    calibration_error_translation: float = 0.0
+    calibration_error_rotation_deg: float = 0.0
 
     def __post_init__(self):
+        if self.obs_type not in OBS_TYPES:
+            raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
+        if min(self.depth_resolution) < 2:
+            raise ValueError(f"depth_resolution must be at least 2x2 pixels, got {self.depth_resolution}")
+        if min(self.depth_noise_std, self.calibration_error_translation, self.calibration_error_rotation_deg) < 0:
+            raise ValueError("depth_noise_std and the calibration errors must be non-negative")
         if self.num_points <= 0 or self.fps <= 0 or self.max_crop_pixels < 2:
             raise ValueError("num_points and fps must be positive and max_crop_pixels at least 2")
         if self.max_translation_step <= 0 or self.max_rotation_step_deg <= 0:
@@ -106,12 +128,7 @@ class BulletTabletopEnv(gym.Env):
         self._substeps = int(round(1.0 / (PHYSICS_TIMESTEP * self.config.fps)))
         self._workspace_low = np.asarray(self.config.workspace_low, dtype=np.float64)
         self._workspace_high = np.asarray(self.config.workspace_high, dtype=np.float64)
-        self.observation_space = gym.spaces.Dict(
-            {
-                "pointcloud": gym.spaces.Box(-np.inf, np.inf, (self.config.num_points, 3), np.float32),
-                "agent_pos": gym.spaces.Box(-np.inf, np.inf, (8,), np.float32),
-            }
-        )
+        self.observation_space = gym.spaces.Dict(self._observation_spaces())
         self.action_space = gym.spaces.Box(
             low=np.r_[self._workspace_low, -np.ones(4), 0.0].astype(np.float32),
             high=np.r_[self._workspace_high, np.ones(4), 1.0].astype(np.float32),
@@ -125,6 +142,7 @@ class BulletTabletopEnv(gym.Env):
         self._label_of_body = np.full(1, -1, dtype=np.int8)
         self._elapsed_steps = 0
         self._last_cloud = np.zeros((self.config.num_points, 3), dtype=np.float32)
+        self._reported_camera_poses = self.camera_poses()
 
     # --- gymnasium API ---------------------------------------------------------------------------------
 
@@ -156,6 +174,7 @@ class BulletTabletopEnv(gym.Env):
             pybullet.stepSimulation(physicsClientId=self.client)
         self._elapsed_steps = 0
         self._last_cloud = np.zeros((self.config.num_points, 3), dtype=np.float32)
+        self._reported_camera_poses = self._perturbed_camera_poses()
         observation, cloud_empty = self._observe()
         return observation, {"is_success": False, "pointcloud_empty": cloud_empty}
 
@@ -213,6 +232,24 @@ class BulletTabletopEnv(gym.Env):
         waypoints = self.task_impl.demonstration(self.scene)
         return interpolate_waypoints(self.robot.ee_pose(), self.robot.gripper_open, waypoints)
 
+    def camera_intrinsics(self) -> np.ndarray:
+        """``(C, 3, 3)``: each depth camera's pinhole matrix at ``depth_resolution`` (OpenCV convention, pixels)."""
+        width, height = self.config.depth_resolution
+        matrices = []
+        for camera in self.config.cameras:
+            focal = height / (2.0 * np.tan(np.radians(camera.fov_deg) / 2.0))
+            matrices.append([[focal, 0.0, width / 2.0 - 0.5], [0.0, focal, height / 2.0 - 0.5], [0.0, 0.0, 1.0]])
+        return np.asarray(matrices)
+
+    def camera_poses(self) -> np.ndarray:
+        """``(C, 4, 4)``: each depth camera's true ``T_world_camera`` (OpenCV optical frame: x right, y down, z
+        forward)."""
+        return np.stack([np.linalg.inv(view) @ _GL_TO_OPENCV for view in self._views])
+
+    def joint_positions(self) -> np.ndarray:
+        """``(9,)`` float32: the 7 arm joints (rad) and the 2 finger joints (m)."""
+        return self.robot.joint_positions().astype(np.float32)
+
     def agent_pos(self) -> np.ndarray:
         """The ``(8,)`` float32 state of DESIGN §4 (EE pose in the world frame, gripper open flag)."""
         position, quat = pose_to_pos_quat(self.robot.ee_pose())
@@ -249,7 +286,67 @@ class BulletTabletopEnv(gym.Env):
         rotation = current[:3, :3] @ Rotation.from_rotvec(rotvec).as_matrix()
         return make_pose(position, rotation), True
 
+    def _observation_spaces(self) -> dict[str, gym.spaces.Box]:
+        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (8,), np.float32)}
+        if self.config.obs_type == "pointcloud":
+            spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (self.config.num_points, 3), np.float32)
+            return spaces
+        cameras = len(self.config.cameras)
+        width, height = self.config.depth_resolution
+        spaces["depth"] = gym.spaces.Box(0.0, np.inf, (cameras, height, width), np.float32)
+        spaces["intrinsics"] = gym.spaces.Box(-np.inf, np.inf, (cameras, 3, 3), np.float32)
+        spaces["T_world_camera"] = gym.spaces.Box(-np.inf, np.inf, (cameras, 4, 4), np.float32)
+        spaces["joint_positions"] = gym.spaces.Box(-np.inf, np.inf, (9,), np.float32)
+        return spaces
+
+    def _perturbed_camera_poses(self) -> np.ndarray:
+        """``(C, 4, 4)``: each camera's true ``T_world_camera`` moved by the configured calibration error (a
+        translation of exactly ``calibration_error_translation`` m and a rotation of exactly
+        ``calibration_error_rotation_deg`` about the camera centre, random directions from ``np_random``)."""
+        poses = []
+        for pose in self.camera_poses():
+            direction = self.np_random.normal(size=3)
+            axis = self.np_random.normal(size=3)
+            pose[:3, 3] += self.config.calibration_error_translation * direction / np.linalg.norm(direction)
+            rotvec = np.radians(self.config.calibration_error_rotation_deg) * axis / np.linalg.norm(axis)
+            pose[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix() @ pose[:3, :3]
+            poses.append(pose)
+        return np.stack(poses)
+
+    def _observe_rgbd(self) -> dict[str, np.ndarray]:
+        depth = np.stack([self._render_depth(camera, view) for camera, view in zip(self.config.cameras, self._views, strict=True)])
+        if self.config.depth_noise_std > 0:
+            returns = depth > 0
+            depth[returns] += self.np_random.normal(0.0, self.config.depth_noise_std, int(returns.sum()))
+            depth = np.maximum(depth, 0.0)
+        return {
+            "depth": depth.astype(np.float32),
+            "intrinsics": self.camera_intrinsics().astype(np.float32),
+            "T_world_camera": self._reported_camera_poses.astype(np.float32),
+            "joint_positions": self.joint_positions(),
+            "agent_pos": self.agent_pos(),
+        }
+
+    def _render_depth(self, camera: CameraConfig, view: np.ndarray) -> np.ndarray:
+        """Metric depth ``(H, W)`` float64 of one camera's full frame at ``depth_resolution`` (0 at the far plane)."""
+        width, height = self.config.depth_resolution
+        projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, width / height, camera.near, camera.far)
+        _, _, _, buffer, _ = pybullet.getCameraImage(
+            width,
+            height,
+            viewMatrix=view.T.reshape(-1).tolist(),
+            projectionMatrix=projection,
+            renderer=pybullet.ER_TINY_RENDERER,
+            flags=pybullet.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=self.client,
+        )
+        buffer = np.asarray(buffer, dtype=np.float64).reshape(height, width)
+        depth = camera.far * camera.near / (camera.far - (camera.far - camera.near) * buffer)
+        return np.where(buffer >= 1.0 - 1e-7, 0.0, depth)
+
     def _observe(self) -> tuple[dict[str, np.ndarray], bool]:
+        if self.config.obs_type == "rgbd":
+            return self._observe_rgbd(), False
         cloud_empty = False
         if self.observe_pointcloud:
             points = self._render_points()

@@ -22,6 +22,7 @@ from ..geometry.se3 import pose_from_pos_quat
 PANDA_URDF = "franka_panda/panda.urdf"
 EE_LINK_NAME = "panda_grasptarget"
 FINGER_JOINT_NAMES = ("panda_finger_joint1", "panda_finger_joint2")
+JOINT_NAMES = tuple(f"panda_joint{index}" for index in range(1, 8)) + FINGER_JOINT_NAMES  # of ``joint_positions``
 ARM_DOF = 7
 FINGER_OPEN = 0.04
 FINGER_CLOSED = 0.0
@@ -113,6 +114,11 @@ class PandaRobot:
             self.body, self.ee_link, computeForwardKinematics=True, physicsClientId=self.client
         )
         return pose_from_pos_quat(np.asarray(state[4]), np.asarray(state[5]))
+
+    def joint_positions(self) -> np.ndarray:
+        """``(9,)`` positions of the movable joints: 7 arm joints (rad), 2 finger joints (m)."""
+        states = pybullet.getJointStates(self.body, self._movable, physicsClientId=self.client)
+        return np.array([state[0] for state in states])
 
     def finger_opening(self) -> float:
         """Distance between the fingers (m), 0.08 fully open."""

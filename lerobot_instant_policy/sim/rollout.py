@@ -13,16 +13,19 @@ from .env import BulletTabletopEnv
 class EpisodeRecord:
     """One episode: ``points (F, P, 3)``, ``state (F, 8)`` (before each action), ``action (F, 8)`` float32.
 
-    ``images``: ``(F, H, W, 3)`` uint8 renders when requested, else ``None``.
+    ``images``: ``(F, H, W, 3)`` uint8 renders when requested, else ``None``. In ``rgbd`` mode ``points`` is
+    ``None`` and ``depth (F, C, H, W)`` float32 metres and ``joint_positions (F, 9)`` hold the raw observations.
     """
 
     task: str
     seed: int
     success: bool
-    points: np.ndarray
+    points: np.ndarray | None
     state: np.ndarray
     action: np.ndarray
     images: np.ndarray | None = field(default=None)
+    depth: np.ndarray | None = field(default=None)
+    joint_positions: np.ndarray | None = field(default=None)
 
     @property
     def num_frames(self) -> int:
@@ -44,11 +47,16 @@ def run_episode(
         plan = env.scripted_actions()
     else:
         plan = observation["agent_pos"][None].astype(np.float64)
-    points, states, actions, images = [], [], [], []
+    points, states, actions, images, depth, joints = [], [], [], [], [], []
+    rgbd = env.config.obs_type == "rgbd"
     success = False
     for step in range(env._max_episode_steps):
         action = plan[min(step, len(plan) - 1)]
-        points.append(observation["pointcloud"])
+        if rgbd:
+            depth.append(observation["depth"])
+            joints.append(observation["joint_positions"])
+        else:
+            points.append(observation["pointcloud"])
         states.append(observation["agent_pos"])
         actions.append(action.astype(np.float32))
         if with_images:
@@ -61,8 +69,10 @@ def run_episode(
         task=env.task,
         seed=seed,
         success=success,
-        points=np.stack(points),
+        points=None if rgbd else np.stack(points),
         state=np.stack(states),
         action=np.stack(actions),
         images=np.stack(images) if with_images else None,
+        depth=np.stack(depth) if rgbd else None,
+        joint_positions=np.stack(joints) if rgbd else None,
     )

@@ -1,0 +1,6 @@
+"""From depth cameras to the segmented world-frame point clouds of the data contract, without learned weights.
+
+``calibration`` (camera intrinsics and extrinsics, checked), ``depth`` (back-projection, unit checks),
+``segmentation`` (workspace box, table plane, gripper box), ``robot_model`` (URDF kinematics and link surfaces),
+``steps`` (LeRobot ``ProcessorStep``s), ``pipeline`` (``PerceptionConfig`` → a processor pipeline).
+"""
