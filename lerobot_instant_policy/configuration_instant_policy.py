@@ -101,8 +101,10 @@ class InstantPolicyConfig(PreTrainedConfig):
     Training: with ``cache_frame_encodings`` the frozen encoder's output for every frame of the training dataset is
     computed once and stored beside the dataset (``frame_encodings``; rebuilt when the encoder or the dataset
     changes), so training steps read scene nodes instead of encoding clouds. ``gripper_flip_probability`` of the
-    current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and rotation flow errors plus ``gripper_loss_weight`` times the
-    gripper's binary cross-entropy; N is drawn per batch and capped at the fewest other episodes a row's task has
+    current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and
+    rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
+    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy; N is
+    drawn per batch and capped at the fewest other episodes a row's task has
     (a demonstration never repeats in one context); AdamW with
     ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-4 for ``small``), linear warmup
     over ``scheduler_warmup_steps`` then cosine decay to zero, gradients clipped to ``optimizer_grad_clip_norm``.
@@ -138,6 +140,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     dense_attention: bool = True
     action_scene_graph: bool = True
     cache_frame_encodings: bool = True
+    flow_loss_weighting: str = "uniform"
 
     gripper_flip_probability: float = 0.1
     gripper_loss_weight: float = 0.1

@@ -94,6 +94,7 @@ def network_config(config: InstantPolicyConfig) -> InstantPolicyNetworkConfig:
         gripper_loss_weight=config.gripper_loss_weight,
         dense_attention=config.dense_attention,
         action_scene_graph=config.action_scene_graph,
+        flow_loss_weighting=config.flow_loss_weighting,
         max_num_demos=SUPPORTED_DEMOS[1],
         max_demo_length=SUPPORTED_WAYPOINTS[1],
     )

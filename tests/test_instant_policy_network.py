@@ -379,3 +379,31 @@ def test_loss_weighs_a_gripper_cross_entropy_and_sampling_reads_its_logit():
             confident = network.training_loss(context, batch["T_ee_actions"], torch.full_like(batch["action_gripper"],
                                                                                               expected))
             assert float(confident["gripper"]) < 1e-6  # a confident right logit costs nothing
+
+
+def test_flow_loss_weights_favour_high_noise_and_average_one():
+    diffusion = _network().diffusion
+    timesteps = torch.arange(100)
+    torch.testing.assert_close(diffusion.loss_weights(timesteps, "uniform"), torch.ones(100))
+    noise = diffusion.loss_weights(timesteps, "noise")
+    assert torch.all(noise[1:] >= noise[:-1]) and noise[0] < 0.01 and noise[-1] > 1.5
+    assert float(noise.mean()) == pytest.approx(1.0, abs=1e-5)
+    with pytest.raises(ValueError, match="unknown flow loss weighting"):
+        diffusion.loss_weights(timesteps, "snr")
+    with pytest.raises(ValueError, match="flow_loss_weighting"):
+        _tiny_config(flow_loss_weighting="snr")
+
+
+def test_flow_loss_weighting_reweighs_only_the_flow_terms():
+    """Same weights, noise and timesteps: the weighting changes the flow losses and leaves the gripper's alone."""
+    batch = _batch(batch=4)
+    losses = {}
+    for scheme in ("uniform", "noise"):
+        network = _network(flow_loss_weighting=scheme)
+        generator = torch.Generator().manual_seed(7)
+        losses[scheme] = network.training_loss(
+            _context(network, batch), batch["T_ee_actions"], batch["action_gripper"], generator
+        )
+    for part in ("translation", "rotation"):
+        assert torch.isfinite(losses["noise"][part]) and float(losses["noise"][part]) != float(losses["uniform"][part])
+    assert float(losses["noise"]["gripper"]) == pytest.approx(float(losses["uniform"]["gripper"]), rel=1e-6)

@@ -29,7 +29,7 @@ from torch import nn
 
 from ..config_io import config_from_dict
 from ..geometry.gripper import GRIPPER_KEYPOINTS
-from .action_diffusion import FLOW_DIM, ActionDiffusion, invert_rigid, points_in_action_frames
+from .action_diffusion import FLOW_DIM, LOSS_WEIGHTINGS, ActionDiffusion, invert_rigid, points_in_action_frames
 from .encodings import encoding_dim, sinusoidal_encoding
 from .geometry_encoder import GeometryEncoder, GeometryEncoderConfig, encoder_preset
 from .graph import (
@@ -76,6 +76,8 @@ class InstantPolicyNetworkConfig:
     ``action_scene_graph``: σ runs on every action's local graph (the scene seen from the noisy action, the paper's
     graph); False gives the action gripper nodes only their keypoint, gripper and timestep embeddings, so they see
     the scene through the current nodes alone (an ablation of the information paths).
+    ``flow_loss_weighting``: how the flow losses weigh diffusion timesteps (``uniform``, the paper's; ``noise``:
+    by the noise variance, see :meth:`ActionDiffusion.loss_weights`).
     """
 
     hidden_dim: int = 128
@@ -98,6 +100,7 @@ class InstantPolicyNetworkConfig:
     gripper_loss_weight: float = 0.1
     dense_attention: bool = True
     action_scene_graph: bool = True
+    flow_loss_weighting: str = "uniform"
     max_num_demos: int = 8
     max_demo_length: int = 32
 
@@ -124,6 +127,8 @@ class InstantPolicyNetworkConfig:
             raise ValueError("gripper_keypoints needs at least 3 points of 3 coordinates (an SE(3) fit needs 3)")
         if self.max_translation <= 0 or self.max_rotation_deg <= 0:
             raise ValueError("max_translation and max_rotation_deg must be positive")
+        if self.flow_loss_weighting not in LOSS_WEIGHTINGS:
+            raise ValueError(f"flow_loss_weighting must be one of {list(LOSS_WEIGHTINGS)}, got {self.flow_loss_weighting!r}")
         if self.gripper_loss_weight < 0:
             raise ValueError(f"gripper_loss_weight must be non-negative, got {self.gripper_loss_weight}")
 
@@ -510,7 +515,8 @@ class InstantPolicyNetwork(nn.Module):
 
         Returns:
             ``loss`` = translation + rotation + ``gripper_loss_weight`` · gripper, and its parts: ``translation`` and
-            ``rotation`` (mean squared errors of the normalised flows) and ``gripper`` (binary cross-entropy of the
+            ``rotation`` (mean squared errors of the normalised flows, each sample weighted by
+            :meth:`ActionDiffusion.loss_weights` of its timestep under ``flow_loss_weighting``) and ``gripper`` (binary cross-entropy of the
             gripper logits against the clean command). The flows drive the gradients: the gripper is a binary label
             that a cross-entropy learns fast, while its squared error on ±1 targets dominated the sum.
         """
@@ -528,8 +534,10 @@ class InstantPolicyNetwork(nn.Module):
         T_clean, _ = self.diffusion.unnormalize(clean)
         flow_target = self.diffusion.flow_targets(T_clean, T_noisy)
         prediction = self.denoise(context, T_noisy, gripper_noisy, timesteps)
-        translation = nn.functional.mse_loss(prediction[..., :3], flow_target[..., :3])
-        rotation = nn.functional.mse_loss(prediction[..., 3:6], flow_target[..., 3:6])
+        weights = self.diffusion.loss_weights(timesteps, self.config.flow_loss_weighting).to(prediction.dtype)
+        squared = (prediction[..., :FLOW_DIM] - flow_target).square()  # (B, T, K, 6)
+        translation = (weights * squared[..., :3].mean(dim=(1, 2, 3))).mean()
+        rotation = (weights * squared[..., 3:].mean(dim=(1, 2, 3))).mean()
         gripper_open = (clean[..., 6:7] > 0).to(prediction.dtype).expand_as(prediction[..., 6])
         gripper = nn.functional.binary_cross_entropy_with_logits(prediction[..., 6], gripper_open)
         loss = translation + rotation + self.config.gripper_loss_weight * gripper
