@@ -322,7 +322,16 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                     "instant_policy training draws context demonstrations from the training dataset: build the policy "
                     "with dataset_meta (lerobot-train does) or call set_training_bank()"
                 )
-            self.set_training_bank(ContextBank.from_dataset_meta(self._dataset_meta, self.config.num_waypoints))
+            shape = tuple(self._dataset_meta.features.get(POINTCLOUD_KEY, {}).get("shape", ()))
+            if shape[:1] != (self.config.num_points,):
+                raise ValueError(
+                    f"point clouds of the wrong size: the training dataset's {POINTCLOUD_KEY!r} has shape {shape}, "
+                    f"the policy expects ({self.config.num_points}, 3)"
+                )
+            # With frame encodings the bank needs no clouds: their scene nodes come from the cache.
+            read_points = self.training_frame_encodings() is None
+            bank = ContextBank.from_dataset_meta(self._dataset_meta, self.config.num_waypoints, read_points=read_points)
+            self.set_training_bank(bank)
         return self._training_bank
 
     def training_frame_encodings(self) -> FrameEncodings | None:
@@ -345,7 +354,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         ``frame_encodings`` of the dataset it was read from for its waypoints and the batches' frames (``index``)."""
         if bank.num_waypoints != self.config.num_waypoints:
             raise ValueError(f"the bank has L={bank.num_waypoints} waypoints, the config {self.config.num_waypoints}")
-        if bank.num_points != self.config.num_points:
+        if bank.num_points is not None and bank.num_points != self.config.num_points:
             raise ValueError(
                 f"point clouds of the wrong size: the training dataset has {bank.num_points} points per cloud, the "
                 f"policy expects {self.config.num_points}"

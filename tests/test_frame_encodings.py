@@ -75,8 +75,10 @@ def test_training_with_the_cache_computes_the_loss_of_live_encoding(dataset):
         loss, parts = policy.forward(batch)
         loss.backward()
         losses[cached] = (float(loss.detach()), parts)
-        # Without the cache the bank encodes its context episodes itself; with it, it encodes nothing.
+        # Without the cache the bank encodes its context episodes itself; with it, it encodes nothing and was read
+        # without the waypoints' clouds.
         assert (policy.training_bank().num_encoded == 0) == cached
+        assert (policy.training_bank().points_world is None) == cached
         assert (policy.training_frame_encodings() is not None) == cached
     assert losses[True][0] == pytest.approx(losses[False][0], rel=1e-4)
     assert losses[True][1]["num_demos"] == losses[False][1]["num_demos"]
@@ -143,3 +145,32 @@ def test_frame_encodings_need_a_bank_read_from_their_dataset(dataset):
     indices = bank.dataset_indices(np.array([episode]))[0]
     points = dataset.hf_dataset.with_format("numpy", columns=[POINTCLOUD_KEY])[indices.tolist()][POINTCLOUD_KEY]
     np.testing.assert_array_equal(points, bank.episode(episode).points_world)
+
+
+def test_a_bank_read_without_clouds_keeps_poses_and_indices_and_refuses_to_encode(dataset):
+    full = ContextBank.from_dataset(REPO, dataset.root, 10)
+    light = ContextBank.from_dataset(REPO, dataset.root, 10, read_points=False)
+    assert light.num_points is None and full.num_points == dataset.meta.features[POINTCLOUD_KEY]["shape"][0]
+    episodes = np.array([[0, 4], [5, 1]])
+    np.testing.assert_array_equal(light.dataset_indices(episodes), full.dataset_indices(episodes))
+    np.testing.assert_array_equal(light.gather(episodes).T_world_ee, full.gather(episodes).T_world_ee)
+    assert light.gather(episodes).points_world is None
+    from lerobot_instant_policy.data.demonstrations import DemonstrationError
+
+    with pytest.raises(DemonstrationError, match="without its point clouds"):
+        light.points_ee(0)
+
+
+def test_training_refuses_a_dataset_with_clouds_of_another_size(dataset):
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    torch.manual_seed(0)
+    config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, max_demos=2)
+    config.input_features[POINTCLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(1024, 3))
+    policy = InstantPolicyPolicy(config, dataset_meta=dataset.meta).train()
+    batch = next(iter(torch.utils.data.DataLoader(dataset, batch_size=2)))
+    with pytest.raises(ValueError, match="point clouds of the wrong size"):
+        policy.training_bank()
+    assert not (dataset.root / CACHE_DIR).exists()  # refused before anything was encoded or written
+    with pytest.raises(ValueError, match="wrong size"):
+        policy.forward(batch)

@@ -12,7 +12,8 @@ gripper entry; ``state[0]``'s at the first frame). On a clean demonstration this
 right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose (DESIGN §7),
 which would otherwise count as gripper changes.
 
-Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus the cached encoder outputs.
+Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus the cached encoder outputs; a bank
+read with ``read_points=False`` (training from frame encodings) holds only the poses, gripper states and indices.
 """
 
 from __future__ import annotations
@@ -36,13 +37,13 @@ Encoded = torch.Tensor | tuple[torch.Tensor, ...]
 @dataclass(frozen=True)
 class EpisodeWaypoints:
     """One episode's waypoints. ``frame_indices (L,)`` within the episode; ``points_world (L, P, 3)`` float32 object
-    points, world frame; ``T_world_ee (L, 4, 4)`` float32 EE poses; ``gripper_open (L,)`` float32, 1 open, 0 closed;
+    points, world frame (None: not read, when their encodings come from a frame-encoding cache); ``T_world_ee (L, 4, 4)`` float32 EE poses; ``gripper_open (L,)`` float32, 1 open, 0 closed;
     ``dataset_indices (L,)`` the waypoint frames' global ``index`` in their dataset (None: not from a dataset)."""
 
     episode_index: int
     task: str
     frame_indices: np.ndarray
-    points_world: np.ndarray
+    points_world: np.ndarray | None
     T_world_ee: np.ndarray
     gripper_open: np.ndarray
     dataset_indices: np.ndarray | None = None
@@ -51,9 +52,10 @@ class EpisodeWaypoints:
 @dataclass(frozen=True)
 class ContextArrays:
     """Waypoints of several episodes, indexed like the episode array ``(...)`` they were gathered for:
-    ``points_world (..., L, P, 3)``, ``T_world_ee (..., L, 4, 4)``, ``gripper_open (..., L)`` (float32, world frame)."""
+    ``points_world (..., L, P, 3)`` (None for a bank read without clouds), ``T_world_ee (..., L, 4, 4)``,
+    ``gripper_open (..., L)`` (float32, world frame)."""
 
-    points_world: np.ndarray
+    points_world: np.ndarray | None
     T_world_ee: np.ndarray
     gripper_open: np.ndarray
 
@@ -65,7 +67,8 @@ class ContextBank:
     def __init__(self, waypoints: Sequence[EpisodeWaypoints]):
         if not waypoints:
             raise DemonstrationError("a context bank needs at least one episode")
-        shapes = {(item.points_world.shape, item.T_world_ee.shape, item.gripper_open.shape) for item in waypoints}
+        shapes = {(None if item.points_world is None else item.points_world.shape, item.T_world_ee.shape,
+                   item.gripper_open.shape) for item in waypoints}
         if len(shapes) != 1:
             raise DemonstrationError(f"every episode must have the same waypoint array shapes, got {sorted(shapes)}")
         self.episode_indices = np.array([item.episode_index for item in waypoints], dtype=np.int64)
@@ -73,7 +76,10 @@ class ContextBank:
             raise DemonstrationError("episode indices in a context bank must be unique")
         self.task_of_row = [item.task for item in waypoints]
         self.frame_indices = np.stack([item.frame_indices for item in waypoints])
-        self.points_world = np.stack([item.points_world for item in waypoints]).astype(np.float32, copy=False)
+        self.points_world = (
+            None if waypoints[0].points_world is None
+            else np.stack([item.points_world for item in waypoints]).astype(np.float32, copy=False)
+        )
         self.T_world_ee = np.stack([item.T_world_ee for item in waypoints]).astype(np.float32, copy=False)
         self.gripper_open = np.stack([item.gripper_open for item in waypoints]).astype(np.float32, copy=False)
         self._dataset_indices = np.stack([
@@ -97,11 +103,13 @@ class ContextBank:
         num_waypoints: int,
         episodes: Sequence[int] | None = None,
         stop: StopCriterion = StopCriterion(),
+        read_points: bool = True,
     ) -> ContextBank:
         """The bank of the LeRobotDataset at ``root`` (read offline), all episodes or only ``episodes``.
 
         Reads every frame's EE state and action, extracts the waypoints, then reads the point clouds of the
-        waypoint frames only. ``DemonstrationError`` names what is wrong with a dataset outside the data contract
+        waypoint frames only (not at all with ``read_points=False``: a bank of poses, gripper states and frame
+        indices, for training from a frame-encoding cache; ``L · P · 3`` floats less per episode). ``DemonstrationError`` names what is wrong with a dataset outside the data contract
         (a missing ``observation.pointcloud`` or ``observation.state``, …), unknown episodes, an episode with
         fewer frames than ``num_waypoints``, and NaN or infinite values in the frames it reads.
         """
@@ -126,13 +134,17 @@ class ContextBank:
             chosen = _extract(T_world_ee, gripper_open, num_waypoints, stop, where)
             plans.append((episode, row["tasks"][0], chosen, start, T_world_ee[chosen], gripper_open[chosen]))
         rows = np.concatenate([start + chosen for _, _, chosen, start, _, _ in plans])
-        selected = dataset.hf_dataset.select(rows).with_format("numpy", columns=[POINTCLOUD_KEY, "index"])[:]
-        points = selected[POINTCLOUD_KEY].reshape(len(plans), num_waypoints, -1, 3)
+        columns = [POINTCLOUD_KEY, "index"] if read_points else ["index"]
+        selected = dataset.hf_dataset.select(rows).with_format("numpy", columns=columns)[:]
+        points = (
+            selected[POINTCLOUD_KEY].reshape(len(plans), num_waypoints, -1, 3) if read_points
+            else [None] * len(plans)
+        )
         dataset_indices = np.asarray(selected["index"], dtype=np.int64).reshape(len(plans), num_waypoints)
         waypoints = []
         for plan, episode_points, indices in zip(plans, points, dataset_indices):
             episode, task, chosen, _, T_world_ee, gripper_open = plan
-            if not np.isfinite(episode_points).all():
+            if episode_points is not None and not np.isfinite(episode_points).all():
                 raise DemonstrationError(
                     f"episode {episode} of the dataset at {dataset.root}: {POINTCLOUD_KEY} contains NaN or "
                     "infinite values"
@@ -143,9 +155,11 @@ class ContextBank:
         return cls(waypoints)
 
     @classmethod
-    def from_dataset_meta(cls, dataset_meta, num_waypoints: int, stop: StopCriterion = StopCriterion()) -> ContextBank:
+    def from_dataset_meta(
+        cls, dataset_meta, num_waypoints: int, stop: StopCriterion = StopCriterion(), read_points: bool = True
+    ) -> ContextBank:
         """The bank of the dataset a ``LeRobotDatasetMetadata`` describes (its ``repo_id`` and local ``root``)."""
-        return cls.from_dataset(dataset_meta.repo_id, dataset_meta.root, num_waypoints, stop=stop)
+        return cls.from_dataset(dataset_meta.repo_id, dataset_meta.root, num_waypoints, stop=stop, read_points=read_points)
 
     @classmethod
     def from_demonstrations(
@@ -168,11 +182,12 @@ class ContextBank:
 
     @property
     def num_waypoints(self) -> int:
-        return self.points_world.shape[1]
+        return self.T_world_ee.shape[1]
 
     @property
-    def num_points(self) -> int:
-        return self.points_world.shape[2]
+    def num_points(self) -> int | None:
+        """P of the waypoint clouds; None for a bank read without them."""
+        return None if self.points_world is None else self.points_world.shape[2]
 
     @property
     def tasks(self) -> list[str]:
@@ -191,7 +206,7 @@ class ContextBank:
             int(episode_index),
             self.task_of_row[row],
             self.frame_indices[row],
-            self.points_world[row],
+            None if self.points_world is None else self.points_world[row],
             self.T_world_ee[row],
             self.gripper_open[row],
             None if self._dataset_indices[row, 0] < 0 else self._dataset_indices[row],
@@ -236,7 +251,8 @@ class ContextBank:
     def gather(self, episode_indices) -> ContextArrays:
         """The waypoints of ``episode_indices`` (an int array of any shape ``(...)``)."""
         rows = self._rows(episode_indices)
-        return ContextArrays(self.points_world[rows], self.T_world_ee[rows], self.gripper_open[rows])
+        points = None if self.points_world is None else self.points_world[rows]
+        return ContextArrays(points, self.T_world_ee[rows], self.gripper_open[rows])
 
     @property
     def has_dataset_indices(self) -> bool:
@@ -253,6 +269,8 @@ class ContextBank:
 
     def points_ee(self, episode_index: int) -> np.ndarray:
         """``(L, P, 3)`` float32: each waypoint's object points in its own EE frame, ``R_WEᵀ (p − t_WE)``."""
+        if self.points_world is None:
+            raise DemonstrationError("this context bank was read without its point clouds (read_points=False)")
         row = self._row(episode_index)
         rotations, translations = self.T_world_ee[row, :, :3, :3], self.T_world_ee[row, :, :3, 3]
         return np.einsum("lpi,lij->lpj", self.points_world[row] - translations[:, None], rotations).astype(np.float32)
