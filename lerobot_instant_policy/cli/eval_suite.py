@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from ..sim.configuration_bullet_tabletop import OBS_TYPES
 from .eval_table import collect_results, format_table, results_json, save_bar_chart
 from .record_demos import record
 
@@ -204,7 +205,7 @@ def build_parser(prog: str = "lerobot-ip-eval-suite") -> argparse.ArgumentParser
         help="override a policy config field, e.g. inference_steps=8 (repeatable; passed as --policy.KEY=VALUE)",
     )
     parser.add_argument(
-        "--obs-type", choices=("pointcloud", "rgbd"), default="pointcloud",
+        "--obs-type", choices=OBS_TYPES, default="pointcloud",
         help="segmented clouds from the simulator, or raw depth through the perception pipeline",
     )
     parser.add_argument(

@@ -211,6 +211,8 @@ def check(tasks: list[str], episodes: int, seed: int, task_module: str | None = 
 
 
 def main(argv: list[str] | None = None) -> int:
+    from ..sim.configuration_bullet_tabletop import OBS_TYPES
+
     parser = argparse.ArgumentParser(prog="lerobot-ip-record-demos", description=__doc__.split("\n\n")[0])
     parser.add_argument("--list-tasks", action="store_true", help="print the task names, one per line")
     parser.add_argument("--check", action="store_true", help="print scripted and do-nothing success per task")
@@ -223,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--with-images", action="store_true", help=f"also write an RGB '{IMAGE_KEY}' key")
     parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     parser.add_argument(
-        "--obs-type", choices=("pointcloud", "rgbd"), default="pointcloud", help="segmented clouds or raw depth + joints"
+        "--obs-type", choices=OBS_TYPES, default="pointcloud", help="segmented clouds or raw depth + joints"
     )
     parser.add_argument("--max-attempts", type=int, default=5, help="seeds tried per episode before giving up")
     parser.add_argument("--json", action="store_true", help="print JSON (--check, recording)")

@@ -87,6 +87,7 @@ class ContextBank:
             else np.asarray(item.dataset_indices, dtype=np.int64)
             for item in waypoints
         ])
+        self._has_dataset_indices = bool((self._dataset_indices >= 0).all())
         self._row_of = {int(episode): row for row, episode in enumerate(self.episode_indices)}
         by_task: dict[str, list[int]] = {}
         for episode, task in zip(self.episode_indices.tolist(), self.task_of_row):
@@ -257,7 +258,7 @@ class ContextBank:
     @property
     def has_dataset_indices(self) -> bool:
         """Whether every episode was read from a dataset, so its waypoints have global frame indices."""
-        return bool((self._dataset_indices >= 0).all())
+        return self._has_dataset_indices
 
     def dataset_indices(self, episode_indices) -> np.ndarray:
         """The waypoint frames' global dataset ``index`` ``(..., L)`` of ``episode_indices (...)``;

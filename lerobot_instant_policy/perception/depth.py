@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.se3 import transform_points
+
 
 class DepthUnitError(ValueError):
     """Depth values that cannot be metres (e.g. millimetres handed in as metres)."""
@@ -59,5 +61,4 @@ def backproject(
     x = (cols - intrinsics[0, 2]) / intrinsics[0, 0] * z
     y = (rows - intrinsics[1, 2]) / intrinsics[1, 1] * z
     camera_points = np.stack([x, y, z], axis=-1).reshape(-1, 3)
-    world = camera_points @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
-    return world.astype(np.float32), valid.reshape(-1)
+    return transform_points(T_world_camera, camera_points).astype(np.float32), valid.reshape(-1)

@@ -14,7 +14,7 @@ import pybullet
 import trimesh
 from scipy.spatial import cKDTree
 
-from ..geometry.se3 import pose_from_pos_quat
+from ..geometry.se3 import pose_from_pos_quat, transform_points
 
 
 class RobotModel:
@@ -68,8 +68,7 @@ class RobotModel:
             else:
                 state = pybullet.getLinkState(self.body, link, computeForwardKinematics=True, physicsClientId=self.client)
                 position, quat = state[0], state[1]
-            pose = pose_from_pos_quat(np.asarray(position), np.asarray(quat))
-            posed.append(samples @ pose[:3, :3].T + pose[:3, 3])
+            posed.append(transform_points(pose_from_pos_quat(np.asarray(position), np.asarray(quat)), samples))
         return np.concatenate(posed)
 
     def away_from_robot(self, points: np.ndarray, joint_positions: np.ndarray, margin: float) -> np.ndarray:
@@ -117,4 +116,4 @@ class RobotModel:
             return np.zeros((0, 3))
         count = max(16, int(np.ceil(mesh.area / spacing**2)))
         points = np.asarray(trimesh.sample.sample_surface(mesh, count, seed=rng)[0])
-        return points @ pose_from_pos_quat(np.asarray(position), np.asarray(quat))[:3, :3].T + np.asarray(position)
+        return transform_points(pose_from_pos_quat(np.asarray(position), np.asarray(quat)), points)

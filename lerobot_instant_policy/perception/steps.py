@@ -14,6 +14,7 @@ Keys (``observation.`` prefix):
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,8 +66,9 @@ class _CloudSegmentationStep(ObservationProcessorStep):
             mask[row, selected] = self.keep(points[row, selected], observation, row)
         return {**observation, CLOUD_MASK_KEY: mask}
 
+    @abstractmethod
     def keep(self, points: np.ndarray, observation: dict, row: int) -> np.ndarray:
-        raise NotImplementedError
+        """``(P,)`` bool: which of one row's remaining ``points (P, 3)`` (world frame) the step keeps."""
 
     def get_config(self) -> dict[str, Any]:
         return {name: getattr(self, name) for name in self.__dataclass_fields__ if not name.startswith("_")}

@@ -21,6 +21,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 POINTCLOUD_FEATURE = "observation.pointcloud"
+OBS_TYPES = ("pointcloud", "rgbd")  # segmented clouds from the simulator, or raw depth (see sim.env)
 
 
 def make_bullet_tabletop_env(task: str, task_module: str | None, observe_pointcloud: bool = True, **config_kwargs):
@@ -67,8 +68,8 @@ class BulletTabletopEnvConfig(EnvConfig):
     def __post_init__(self):
         if self.num_points <= 0 or self.render_size <= 0 or self.fps <= 0:
             raise ValueError("num_points, render_size and fps must be positive")
-        if self.obs_type not in ("pointcloud", "rgbd"):
-            raise ValueError(f"obs_type must be 'pointcloud' or 'rgbd', got {self.obs_type!r}")
+        if self.obs_type not in OBS_TYPES:
+            raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(8,)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(8,)),

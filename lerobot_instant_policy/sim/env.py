@@ -39,6 +39,7 @@ from ..data.rendering import (
 )
 from ..geometry.sampling import resample_points
 from ..geometry.se3 import make_pose, pose_to_pos_quat
+from .configuration_bullet_tabletop import OBS_TYPES
 from .demonstrator import interpolate_waypoints
 from .robot import PandaRobot, RobotConfig
 from .scene import TABLE_CENTRE, TABLE_HALF_EXTENTS, Scene
@@ -46,7 +47,6 @@ from .task_api import Task, get_task
 
 PHYSICS_TIMESTEP = 1.0 / 240.0
 SETTLE_STEPS = 48
-OBS_TYPES = ("pointcloud", "rgbd")
 _GL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
