@@ -288,9 +288,11 @@ class InstantPolicyConfig(PreTrainedConfig):
         return None
 
     @property
-    def action_delta_indices(self) -> list[int]:
-        """The actions of the current frame and the ``horizon − 1`` after it: targets ``1 … horizon`` frames ahead."""
-        return list(range(self.horizon))
+    def action_delta_indices(self) -> None:
+        """None: LeRobot delivers each training row's own action only. The policy reads the row's ``horizon``-step
+        chunk (targets ``1 … horizon`` frames ahead) from the dataset's action table itself (``ActionChunks``),
+        because LeRobot's delta-timestamp query formats the queried rows' point clouds too (30 ms per row here)."""
+        return None
 
     @property
     def reward_delta_indices(self) -> None:

@@ -1,8 +1,8 @@
 """``InstantPolicyPolicy``: the Instant Policy network as a LeRobot policy (``--policy.type=instant_policy``).
 
 Training (``lerobot-train``): every batch row is a frame of an episode with ``observation.pointcloud (P, 3)`` and
-``observation.state (8,)`` (world frame), the ``horizon`` actions ``action (T, 8)`` that follow it and its
-``episode_index``. The policy draws one N in ``min_demos … max_demos`` per batch (so every row has the same graph)
+``observation.state (8,)`` (world frame), its ``episode_index`` and ``index``; the ``horizon`` actions that follow it
+come from the dataset's action table (:mod:`.data.action_chunks`), read once. The policy draws one N in ``min_demos … max_demos`` per batch (so every row has the same graph)
 and, per row, N other episodes of the row's task from a :class:`ContextBank` it builds on the first ``forward`` from
 the training dataset's ``dataset_meta``. The frozen encoder's output for every frame of that dataset is cached
 beside it (:mod:`.frame_encodings`), so a training step reads the scene nodes of its frames and of their context
@@ -32,11 +32,12 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
 from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
+from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
 from .data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
-from .model.action_diffusion import invert_rigid, make_rigid
+from .geometry.rigid_torch import compose, invert_rigid, make_rigid
 from .model.geometry_encoder import encoder_preset
 from .model.instant_policy_network import InstantPolicyNetwork, InstantPolicyNetworkConfig
 from .model.occupancy import load_geometry_encoder
@@ -133,6 +134,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._dataset_meta = dataset_meta
         self._training_bank: ContextBank | None = None
         self._frame_encodings: FrameEncodings | None = None
+        self._action_chunks: ActionChunks | None = None
         self._demo_contexts: dict[str, DemoContext] = {}
         self._demo_waypoints: dict[str, int] = {}  # L of the demonstrations handed in with set_demonstrations
         self._queue: deque[Tensor] = deque()
@@ -156,8 +158,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
         Args:
             batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame,
-                ``action (B, T, 8)`` absolute EE targets (``action_is_pad (B, T)`` optional: padded actions past the
-                episode's end are replaced by its last action, i.e. the EE holds still), ``episode_index (B,)``.
+                ``episode_index (B,)``, and either ``action (B, T, 8)`` absolute EE targets (``action_is_pad (B, T)``
+                optional: padded actions past the episode's end are replaced by its last action, i.e. the EE holds
+                still) or, as ``lerobot-train`` delivers it, the row's own ``action (B, 8)`` and ``index (B,)``: the
+                chunk is then read from the training dataset's action table (:meth:`training_action_chunks`).
 
         Returns:
             The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats.
@@ -207,6 +211,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         points_world, state = self._observation(batch)
         actions = batch.get(ACTION_KEY)
         batch_size, horizon = len(state), self.config.horizon
+        if actions is not None and tuple(actions.shape) == (batch_size, 8) and "index" in batch:
+            # lerobot-train delivers each row's own action (action_delta_indices is None): read the chunks.
+            chunks, _ = self.training_action_chunks().chunks(batch["index"].detach().cpu().numpy(), horizon)
+            actions = torch.from_numpy(chunks).to(device=state.device, dtype=state.dtype)
         if actions is None or tuple(actions.shape) != (batch_size, horizon, 8):
             got = None if actions is None else tuple(actions.shape)
             raise ValueError(f"{ACTION_KEY!r} must have shape (B, horizon, 8) = ({batch_size}, {horizon}, 8), got {got}")
@@ -214,7 +222,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         if not torch.isfinite(actions).all():
             raise ValueError(f"{ACTION_KEY!r} contains NaN or infinite values")
         T_world_ee = poses_from_vectors(state)
-        T_ee_actions = invert_rigid(T_world_ee)[:, None] @ poses_from_vectors(actions)
+        T_ee_actions = compose(invert_rigid(T_world_ee)[:, None], poses_from_vectors(actions))
         return points_world, state, T_world_ee, T_ee_actions, actions[..., 7].clamp(0.0, 1.0)
 
     @torch.no_grad()
@@ -248,7 +256,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             T_ee_actions, action_gripper = self.network.sample_actions(
                 context, num_inference_steps=self.config.inference_steps, generator=generator
             )
-            chunk[rows] = vectors_from_poses(T_world_ee[rows][:, None] @ T_ee_actions, action_gripper)
+            chunk[rows] = vectors_from_poses(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk
 
     @torch.no_grad()
@@ -333,6 +341,17 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             bank = ContextBank.from_dataset_meta(self._dataset_meta, self.config.num_waypoints, read_points=read_points)
             self.set_training_bank(bank)
         return self._training_bank
+
+    def training_action_chunks(self) -> ActionChunks:
+        """Every frame's action of the training dataset (``dataset_meta``), read on first use."""
+        if self._action_chunks is None:
+            if self._dataset_meta is None:
+                raise RuntimeError(
+                    f"instant_policy training needs {ACTION_KEY!r} chunks of shape (B, horizon, 8): give them in the "
+                    "batch, or build the policy with dataset_meta (lerobot-train does) to read them by 'index'"
+                )
+            self._action_chunks = ActionChunks.from_dataset(self._dataset_meta.repo_id, self._dataset_meta.root)
+        return self._action_chunks
 
     def training_frame_encodings(self) -> FrameEncodings | None:
         """The frozen encoder's output for every frame of the training dataset (``frame_encodings``), loaded from

@@ -40,8 +40,8 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
     assert cfg.push_to_hub is False
     assert set(cfg.normalization_mapping.values()) == {NormalizationMode.IDENTITY}
     assert cfg.observation_delta_indices is None and cfg.reward_delta_indices is None
-    assert cfg.action_delta_indices == list(range(8))
-    assert config(horizon=4, n_action_steps=2).action_delta_indices == [0, 1, 2, 3]
+    # LeRobot delivers each row's own action; the policy reads the chunk itself (tests/test_action_chunks.py).
+    assert cfg.action_delta_indices is None
     assert cfg.encoder_weights_path() == SHIPPED_ENCODER_DIR / "small.safetensors"
 
 

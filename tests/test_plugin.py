@@ -58,3 +58,15 @@ def test_train_step_benchmark_compares_cached_and_live_frame_encodings(capsys):
     assert len(result["runs_cached"]) == len(result["runs_live"]) == 3
     assert min(result["runs_cached"] + result["runs_live"]) > 0
     assert result["cached_over_live"] == round(result["cached"] / result["live"], 3)
+
+
+def test_train_step_benchmark_compares_autocast_and_float32(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
+                 "--compare-amp", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["figure"] == "samples_per_s" and "use_amp" not in result
+    assert len(result["runs_amp"]) == len(result["runs_float32"]) == 3
+    assert min(result["runs_amp"] + result["runs_float32"]) > 0
+    assert result["amp_over_float32"] == round(result["amp"] / result["float32"], 3)

@@ -167,7 +167,19 @@ def main(argv: list[str] | None = None) -> int:
                             help="scene nodes of every frame from precomputed frame encodings (lerobot-train's path)")
     train_step.add_argument("--compare-frame-cache", action="store_true",
                             help="time cached and live encoding in alternation and report the ratio")
+    train_step.add_argument("--amp", choices=["true", "false"], default="false",
+                            help="forward under autocast (bfloat16 on the CPU), as --policy.use_amp=true trains")
+    train_step.add_argument("--compare-amp", action="store_true",
+                            help="time autocast and float32 in alternation and report the ratio")
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    data = commands.add_parser("data", help="milliseconds per training row: LeRobot's delta timestamps against the "
+                                            "policy's action table")
+    data.add_argument("--root", required=True, help="a LeRobotDataset in the data contract")
+    data.add_argument("--repo-id", required=True)
+    data.add_argument("--rows", type=int, default=200)
+    data.add_argument("--horizon", type=int, default=8)
+    data.add_argument("--repeats", type=int, default=3)
+    data.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
     if args.command == "inference":
         if args.repeats <= 0:
@@ -184,21 +196,34 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size) <= 0:
             parser.error("--repeats and --batch-size must be positive")
-        if args.compare_dense_attention and args.compare_frame_cache:
-            parser.error("compare one variant at a time: --compare-dense-attention or --compare-frame-cache")
+        if args.compare_dense_attention + args.compare_frame_cache + args.compare_amp > 1:
+            parser.error("compare one variant at a time: --compare-dense-attention, --compare-frame-cache or "
+                         "--compare-amp")
         from .bench_policy import bench_train_step, compare_variants
 
         def run(**variant):
-            frame_cache = {} if args.compare_frame_cache else {"frame_cache": args.frame_cache == "true"}
+            fixed = {}
+            if not args.compare_frame_cache:
+                fixed["frame_cache"] = args.frame_cache == "true"
+            if not args.compare_amp:
+                fixed["use_amp"] = args.amp == "true"
             return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_overrides(args),
-                                    **frame_cache, **variant)
+                                    **fixed, **variant)
 
         if args.compare_dense_attention:
             result = compare_variants(run, "samples_per_s", "dense_attention", ("dense", "reference"))
         elif args.compare_frame_cache:
             result = compare_variants(run, "samples_per_s", "frame_cache", ("cached", "live"))
+        elif args.compare_amp:
+            result = compare_variants(run, "samples_per_s", "use_amp", ("amp", "float32"))
         else:
             result = run()
+    elif args.command == "data":
+        if min(args.rows, args.horizon, args.repeats) <= 0:
+            parser.error("--rows, --horizon and --repeats must be positive")
+        from .bench_data import bench_data
+
+        result = bench_data(args.repo_id, args.root, args.rows, args.horizon, args.repeats)
     elif args.command == "env":
         if min(args.steps, args.repeats) <= 0:
             parser.error("--steps and --repeats must be positive")

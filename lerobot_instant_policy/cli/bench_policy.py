@@ -99,16 +99,18 @@ def bench_inference(
 
 def bench_train_step(
     preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5, frame_cache: bool = True,
-    **overrides,
+    use_amp: bool = False, **overrides,
 ) -> dict:
     """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed), and the process's peak
     resident memory. With ``frame_cache`` every frame's scene nodes come from frame encodings computed beforehand, as
     ``lerobot-train`` reads them from beside its dataset; without it, the live clouds are encoded at every step and
-    the context waypoints once (the bank's cache is warm before timing)."""
+    the context waypoints once (the bank's cache is warm before timing). ``use_amp`` runs ``forward`` under
+    ``torch.autocast`` with the device's default dtype (bfloat16 on the CPU), as ``lerobot-train
+    --policy.use_amp=true`` does."""
     from ..frame_encodings import FrameEncodings
     from ..modeling_instant_policy import InstantPolicyPolicy, poses_from_vectors
 
-    config = _config(preset, min_demos=num_demos, max_demos=num_demos, **overrides)
+    config = _config(preset, min_demos=num_demos, max_demos=num_demos, use_amp=use_amp, **overrides)
     policy = InstantPolicyPolicy(config).to(config.device).train()
     rng = np.random.default_rng(0)
     L, P, T = config.num_waypoints, config.num_points, config.horizon
@@ -143,7 +145,8 @@ def bench_train_step(
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=config.optimizer_lr)
 
     def step() -> None:
-        loss, _ = policy.forward(batch)
+        with torch.autocast(torch.device(config.device).type, enabled=config.use_amp):
+            loss, _ = policy.forward(batch)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -159,7 +162,8 @@ def bench_train_step(
     return {
         "benchmark": "train-step", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "dense_attention": config.dense_attention, "frame_cache": frame_cache, "batch": batch_size, "N": num_demos,
+        "dense_attention": config.dense_attention, "frame_cache": frame_cache, "use_amp": config.use_amp,
+        "batch": batch_size, "N": num_demos,
         "L": L, "T": T, "points": P, "samples_per_s": round(batch_size / statistics.median(times), 2),
         "runs_s_per_step": [round(value, 3) for value in times],
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),

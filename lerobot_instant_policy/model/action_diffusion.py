@@ -21,30 +21,14 @@ import roma
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
 
+from ..geometry.rigid_torch import compose, full_precision, make_rigid
+
 ACTION_DIM = 7  # translation 3, rotation vector 3, gripper 1
 FLOW_DIM = 6  # translation flow 3, rotation flow 3
 LOSS_WEIGHTINGS = ("uniform", "noise")  # of the flow losses over diffusion timesteps (ActionDiffusion.loss_weights)
 
 
-def invert_rigid(T: torch.Tensor) -> torch.Tensor:
-    """Inverse of rigid transforms ``(..., 4, 4)``."""
-    R_inv = T[..., :3, :3].transpose(-1, -2)
-    inverse = torch.zeros_like(T)
-    inverse[..., :3, :3] = R_inv
-    inverse[..., :3, 3] = -(R_inv @ T[..., :3, 3:4]).squeeze(-1)
-    inverse[..., 3, 3] = 1.0
-    return inverse
-
-
-def make_rigid(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    """``R (..., 3, 3)``, ``t (..., 3)`` → ``(..., 4, 4)``."""
-    T = torch.zeros(*R.shape[:-2], 4, 4, dtype=R.dtype, device=R.device)
-    T[..., :3, :3] = R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
-
-
+@full_precision()
 def points_in_action_frames(points_ee: torch.Tensor, T_ee_actions: torch.Tensor) -> torch.Tensor:
     """Re-express points given in the current EE frame E in every action frame A: ``p_A = Rᵀ (p_E − t)``.
 
@@ -110,6 +94,7 @@ class ActionDiffusion:
     def _per_step(self, values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
         return values.to(dtype=like.dtype, device=like.device)
 
+    @full_precision()
     def normalize_poses(self, T_ee_actions: torch.Tensor) -> torch.Tensor:
         """``T_ee_actions (B, T, 4, 4)`` → clamped normalised tangent ``(B, T, 6)`` (translation, rotation vector)."""
         translation = T_ee_actions[..., :3, 3] / self._per_step(self.translation_bound, T_ee_actions)[:, None]
@@ -147,11 +132,13 @@ class ActionDiffusion:
         variance = 1.0 - self.train_scheduler.alphas_cumprod.to(device=timesteps.device, dtype=torch.float32)
         return variance[timesteps] / variance.mean()
 
+    @full_precision()
     def action_keypoints(self, T_ee_actions: torch.Tensor) -> torch.Tensor:
         """Gripper keypoints of each action in the EE frame: ``(B, T, 4, 4)`` → ``(B, T, K, 3)``."""
         keypoints = self.keypoints.to(dtype=T_ee_actions.dtype, device=T_ee_actions.device)
         return keypoints @ T_ee_actions[..., :3, :3].transpose(-1, -2) + T_ee_actions[..., None, :3, 3]
 
+    @full_precision()
     def flow_targets(self, T_clean: torch.Tensor, T_noisy: torch.Tensor) -> torch.Tensor:
         """Normalised flows from the noisy to the clean keypoints, ``(B, T, K, 6)``: translation, then rotation part."""
         keypoints = self.keypoints.to(dtype=T_clean.dtype, device=T_clean.device)
@@ -161,6 +148,7 @@ class ActionDiffusion:
         rotation = rotation / self._per_step(self.rotation_flow_scale, T_clean)[:, None, None]
         return torch.cat([translation, rotation], dim=-1)
 
+    @full_precision()
     def predicted_clean_actions(self, T_noisy: torch.Tensor, flows: torch.Tensor) -> torch.Tensor:
         """Apply predicted normalised flows ``(B, T, K, 6)`` to the keypoints of ``T_noisy (B, T, 4, 4)``.
 
@@ -171,7 +159,7 @@ class ActionDiffusion:
         translation = flows[..., :3] * self._per_step(self.translation_flow_scale, flows)[:, None, None]
         rotation = flows[..., 3:6] * self._per_step(self.rotation_flow_scale, flows)[:, None, None]
         R_update, t_update = roma.rigid_points_registration(noisy_keypoints, noisy_keypoints + translation + rotation)
-        return make_rigid(R_update, t_update) @ T_noisy
+        return compose(make_rigid(R_update, t_update), T_noisy)
 
     def sample(
         self,

@@ -32,6 +32,7 @@ import functools
 import torch
 from torch_geometric.data import HeteroData
 
+from ..geometry.rigid_torch import full_precision
 from .encodings import encoding_dim, sinusoidal_encoding
 
 SCENE, GRIPPER, DEMO, CURRENT, ACTION = "scene", "gripper", "demo", "current", "action"
@@ -164,6 +165,7 @@ def position_attr(
     return sinusoidal_encoding(dst_positions[edge_index[1]] - src_positions[edge_index[0]], num_frequencies)
 
 
+@full_precision()
 def transform_attr(
     src_frames: torch.Tensor,
     dst_frames: torch.Tensor,
@@ -217,6 +219,7 @@ def dense_position_attr(src_positions: torch.Tensor, dst_positions: torch.Tensor
     return sinusoidal_encoding(dst_positions[:, None, :, :] - src_positions[:, :, None, :], num_frequencies)
 
 
+@full_precision()
 def dense_transform_attr(
     src_frames: torch.Tensor, dst_frames: torch.Tensor, keypoints: torch.Tensor, num_frequencies: int
 ) -> torch.Tensor:

@@ -29,7 +29,8 @@ from torch import nn
 
 from ..config_io import config_from_dict
 from ..geometry.gripper import GRIPPER_KEYPOINTS
-from .action_diffusion import FLOW_DIM, LOSS_WEIGHTINGS, ActionDiffusion, invert_rigid, points_in_action_frames
+from ..geometry.rigid_torch import full_precision, invert_rigid, transform_points
+from .action_diffusion import FLOW_DIM, LOSS_WEIGHTINGS, ActionDiffusion, points_in_action_frames
 from .encodings import encoding_dim, sinusoidal_encoding
 from .geometry_encoder import GeometryEncoder, GeometryEncoderConfig, encoder_preset
 from .graph import (
@@ -177,11 +178,6 @@ class InstantPolicyContext:
         return self.points_ee.shape[0]
 
 
-def _transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """``T (..., 4, 4)`` applied to ``points (..., P, 3)``."""
-    return points @ T[..., :3, :3].transpose(-1, -2) + T[..., None, :3, 3]
-
-
 def _head(hidden_dim: int, out_dim: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(hidden_dim, hidden_dim), nn.GELU(), nn.Linear(hidden_dim, out_dim))
 
@@ -270,8 +266,10 @@ class InstantPolicyNetwork(nn.Module):
             raise ValueError(f"demonstration length L={demo_length} is outside 1…{self.config.max_demo_length}")
 
     # ------------------------------------------------------------------ node features
+    @full_precision()
     def encode_clouds(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Frozen encoder on clouds ``(..., P, 3)`` (any frame) → positions ``(..., M, 3)``, features ``(..., M, D)``."""
+        """Frozen encoder on clouds ``(..., P, 3)`` (any frame) → positions ``(..., M, 3)``, features ``(..., M, D)``.
+        Always in full precision: its farthest-point sampling picks the scene nodes, and its output is cached."""
         leading = points.shape[:-2]
         with torch.no_grad():
             positions, features = self.geometry_encoder(points.reshape(-1, *points.shape[-2:]))
@@ -281,7 +279,7 @@ class InstantPolicyNetwork(nn.Module):
         """The frozen encoder on observed clouds in their own EE frames: ``points_world (..., P, 3)`` and the EE poses
         ``T_world_ee (..., 4, 4)`` → scene-node positions in the EE frame ``(..., M, 3)`` and features ``(..., M, D)``.
         The one place a frame's cloud becomes scene nodes, live or for a cache (``frame_encodings``)."""
-        return self.encode_clouds(_transform_points(invert_rigid(T_world_ee), points_world))
+        return self.encode_clouds(transform_points(invert_rigid(T_world_ee), points_world))
 
     def observation_gripper_features(self, gripper_open: torch.Tensor) -> torch.Tensor:
         """Gripper-node features of observed frames: ``gripper_open (...)`` in {0, 1} → ``(..., K, H)``."""
@@ -349,7 +347,7 @@ class InstantPolicyNetwork(nn.Module):
         self.check_demo_size(num_demos, demo_length)
         self._check_cloud("demo_points_world", demo_points_world, (batch, num_demos, demo_length))
         self._check_tensor("demo_T_world_ee", demo_T_world_ee, (batch, num_demos, demo_length, 4, 4))
-        return self.encode_clouds(_transform_points(invert_rigid(demo_T_world_ee), demo_points_world))
+        return self.encode_clouds(transform_points(invert_rigid(demo_T_world_ee), demo_points_world))
 
     def encode_context(
         self,
@@ -397,7 +395,7 @@ class InstantPolicyNetwork(nn.Module):
         feature_shape = (batch, num_demos, demo_length, num_scene, self.config.encoder.feature_dim)
         self._check_tensor("demo scene features", demo_features, feature_shape)
 
-        points_ee = _transform_points(invert_rigid(T_world_ee), points_world)
+        points_ee = transform_points(invert_rigid(T_world_ee), points_world)
         if scene_geometry is None:
             scene_geometry = self.encode_clouds(points_ee)
         scene_positions, scene_features = scene_geometry
@@ -467,7 +465,8 @@ class InstantPolicyNetwork(nn.Module):
         gripper_features = gripper_features.reshape(batch, horizon * self.num_keypoints, -1)
         actions = self._action_features(context, T_ee_actions, gripper_features)
         out = torch.cat([self.translation_head(actions), self.rotation_head(actions), self.gripper_head(actions)], -1)
-        return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1)
+        # float32 even when the layers ran under autocast: the diffusion's geometry is done in full precision.
+        return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1).float()
 
     def _action_features(
         self, context: InstantPolicyContext, T_ee_actions: torch.Tensor, gripper_features: torch.Tensor

@@ -39,6 +39,7 @@ import torch
 from ..data.context_bank import ContextBank
 from ..data.demonstrations import check_contract_features
 from ..data.generation import DEMOS_FILE, TASKS_FILE
+from ..data.lerobot_format import ACTION_KEY
 from ..modeling_instant_policy import InstantPolicyPolicy
 
 POLICY_TYPE = "instant_policy"
@@ -87,9 +88,9 @@ class EvaluationSet:
     @cached_property
     def dataset(self):
         from lerobot.datasets import LeRobotDataset
-        from lerobot.datasets.factory import resolve_delta_timestamps
 
-        delta_timestamps = resolve_delta_timestamps(self.config, self.meta)
+        # The policy's action chunks as LeRobot's delta timestamps give them (few rows here, so their cost is moot).
+        delta_timestamps = {ACTION_KEY: [step / self.meta.fps for step in range(self.config.horizon)]}
         return LeRobotDataset(self.repo_id, root=self.root, delta_timestamps=delta_timestamps)
 
     @cached_property
