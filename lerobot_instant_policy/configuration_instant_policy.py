@@ -14,10 +14,10 @@ import numpy as np
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
-from .data.lerobot_format import POINTCLOUD_KEY
+from .contract import POINTCLOUD_KEY
 from .geometry.gripper import GRIPPER_KEYPOINTS
 from .policy_features import (
-    check_contract_features,
+    check_policy_features,
     contract_input_features,
     contract_output_features,
     identity_normalization,
@@ -264,7 +264,7 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)``, writes ``action (8,)``."""
-        check_contract_features("instant_policy", self.input_features, self.output_features)
+        check_policy_features("instant_policy", self.input_features, self.output_features)
 
     @property
     def num_points(self) -> int:

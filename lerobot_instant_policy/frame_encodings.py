@@ -131,7 +131,7 @@ def build_frame_encodings(
     float32 tensors on ``device``. Frames are stored in the order of the dataset's ``index`` column, which must run
     0…F−1 (LeRobot writes it so).
     """
-    from .data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
+    from .contract import POINTCLOUD_KEY, STATE_KEY
 
     root = Path(dataset.root)
     path = cache_path(root, fingerprint)

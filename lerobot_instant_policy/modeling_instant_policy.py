@@ -26,18 +26,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import roma
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
 from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
+from .contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch, vectors_from_poses_torch
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
-from .data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
-from .geometry.rigid_torch import compose, invert_rigid, make_rigid
+from .geometry.rigid_torch import compose, invert_rigid
 from .model.geometry_encoder import encoder_preset
 from .model.instant_policy_network import InstantPolicyNetwork, InstantPolicyNetworkConfig
 from .model.occupancy import load_geometry_encoder
@@ -99,22 +98,6 @@ def network_config(config: InstantPolicyConfig) -> InstantPolicyNetworkConfig:
         max_num_demos=SUPPORTED_DEMOS[1],
         max_demo_length=SUPPORTED_WAYPOINTS[1],
     )
-
-
-def poses_from_vectors(poses: Tensor) -> Tensor:
-    """``(..., ≥7)`` rows (xyz, quaternion xyzw, …) → ``T_world_ee (..., 4, 4)``; the quaternion is normalised."""
-    quaternion = poses[..., 3:7]
-    norm = quaternion.norm(dim=-1, keepdim=True)
-    if bool((norm < 1e-6).any()):
-        raise ValueError("an EE pose has a zero quaternion (entries 3…6, xyzw); poses must hold unit quaternions")
-    return make_rigid(roma.unitquat_to_rotmat(quaternion / norm), poses[..., :3])
-
-
-def vectors_from_poses(T_world_ee: Tensor, gripper_open: Tensor) -> Tensor:
-    """``T_world_ee (..., 4, 4)``, ``gripper_open (...)`` → ``(..., 8)``: xyz, quaternion xyzw with ``w ≥ 0``, gripper."""
-    quaternion = roma.rotmat_to_unitquat(T_world_ee[..., :3, :3])
-    quaternion = torch.where(quaternion[..., 3:4] < 0, -quaternion, quaternion)
-    return torch.cat([T_world_ee[..., :3, 3], quaternion, gripper_open[..., None].to(T_world_ee.dtype)], dim=-1)
 
 
 class InstantPolicyPolicy(PreTrainedPolicy):
@@ -221,9 +204,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         actions = _hold_padded(actions, batch.get(f"{ACTION_KEY}_is_pad"))
         if not torch.isfinite(actions).all():
             raise ValueError(f"{ACTION_KEY!r} contains NaN or infinite values")
-        T_world_ee = poses_from_vectors(state)
-        T_ee_actions = compose(invert_rigid(T_world_ee)[:, None], poses_from_vectors(actions))
-        return points_world, state, T_world_ee, T_ee_actions, actions[..., 7].clamp(0.0, 1.0)
+        T_world_ee, _ = poses_from_vectors_torch(state)
+        T_world_actions, action_gripper = poses_from_vectors_torch(actions)
+        T_ee_actions = compose(invert_rigid(T_world_ee)[:, None], T_world_actions)
+        return points_world, state, T_world_ee, T_ee_actions, action_gripper.clamp(0.0, 1.0)
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None, **kwargs) -> Tensor:
@@ -234,8 +218,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
-        T_world_ee = poses_from_vectors(state)
-        gripper = (state[:, 7] > 0.5).to(state.dtype)
+        T_world_ee, gripper_open = poses_from_vectors_torch(state)
+        gripper = (gripper_open > 0.5).to(state.dtype)
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
         for task in dict.fromkeys(tasks):
             rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
@@ -256,7 +240,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             T_ee_actions, action_gripper = self.network.sample_actions(
                 context, num_inference_steps=self.config.inference_steps, generator=generator
             )
-            chunk[rows] = vectors_from_poses(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
+            chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk
 
     @torch.no_grad()
@@ -427,7 +411,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         )
 
     def _encode_frames(self, points_world: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
-        return self.network.encode_observation(points_world, poses_from_vectors(state))
+        T_world_ee, _ = poses_from_vectors_torch(state)
+        return self.network.encode_observation(points_world, T_world_ee)
 
     def _encode_clouds(self, points_ee: Tensor) -> tuple[Tensor, Tensor]:
         return self.network.encode_clouds(points_ee.to(self._device()))

@@ -11,8 +11,9 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from lerobot_instant_policy.contract import NUM_POINTS
 from lerobot_instant_policy.data.demonstrations import Demonstration
-from lerobot_instant_policy.data.lerobot_format import NUM_POINTS, create_dataset, write_episode
+from lerobot_instant_policy.data.lerobot_format import create_dataset, write_episode
 from lerobot_instant_policy.data.objects import load_object
 from lerobot_instant_policy.geometry.se3 import look_rotation, make_pose, pose_to_pos_quat, transform_points
 

@@ -9,9 +9,9 @@ import torch
 from synthetic_demos import object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.contract import ACTION_KEY
 from lerobot_instant_policy.data.action_chunks import ActionChunks
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
-from lerobot_instant_policy.data.lerobot_format import ACTION_KEY
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 REPO = "local/ip_action_chunks"

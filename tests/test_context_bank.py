@@ -8,17 +8,10 @@ import pytest
 import torch
 from synthetic_demos import make_demonstration, object_pose, write_demo_dataset
 
+from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.context_bank import ContextBank
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
-from lerobot_instant_policy.data.lerobot_format import (
-    ACTION_KEY,
-    POINTCLOUD_KEY,
-    STATE_KEY,
-    contract_features,
-    create_dataset,
-    read_episode,
-    write_episode,
-)
+from lerobot_instant_policy.data.lerobot_format import contract_features, create_dataset, read_episode, write_episode
 from lerobot_instant_policy.geometry.se3 import pose_from_pos_quat
 from lerobot_instant_policy.model.geometry_encoder import GeometryEncoder, encoder_preset
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from synthetic_demos import NUM_FRAMES, make_demonstration, object_pose, write_demo_dataset
 
+from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import Demonstration, DemonstrationError, load_demonstrations
-from lerobot_instant_policy.data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 
 REPO_ID = "local/demos"
 

@@ -13,7 +13,7 @@ from lerobot.configs import FeatureType, PolicyFeature, PreTrainedConfig
 from lerobot_instant_policy.baselines import processor_do_nothing
 from lerobot_instant_policy.baselines.modeling_do_nothing import DoNothingPolicy
 from lerobot_instant_policy.cli import eval_suite
-from lerobot_instant_policy.data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 
 
 def make_do_nothing(**overrides):

@@ -12,8 +12,8 @@ import torch
 from synthetic_demos import object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from lerobot_instant_policy.data.context_bank import ContextBank
-from lerobot_instant_policy.data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.frame_encodings import (
     CACHE_DIR,
     META_FILE,
@@ -22,7 +22,7 @@ from lerobot_instant_policy.frame_encodings import (
     encoder_fingerprint,
     load_frame_encodings,
 )
-from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy, poses_from_vectors
+from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 REPO = "local/ip_frame_cache"
 
@@ -54,7 +54,8 @@ def test_cached_scene_nodes_are_the_live_encoding_of_each_frame(dataset):
     assert encodings.path == cache_path(dataset.root, _fingerprint(policy))
     frames = [0, 7, 13, 30, len(dataset) - 1]
     rows = dataset.hf_dataset.with_format("torch", columns=[POINTCLOUD_KEY, STATE_KEY])[frames]
-    live = policy.network.encode_observation(rows[POINTCLOUD_KEY], poses_from_vectors(rows[STATE_KEY]))
+    T_world_ee, _ = poses_from_vectors_torch(rows[STATE_KEY])
+    live = policy.network.encode_observation(rows[POINTCLOUD_KEY], T_world_ee)
     cached = encodings.lookup(np.array(frames))
     for live_part, cached_part in zip(live, cached, strict=True):
         assert cached_part.dtype == torch.float32

@@ -11,7 +11,8 @@ import torch
 from scipy.spatial import cKDTree
 
 from lerobot_instant_policy.cli.generate import main as generate_main
-from lerobot_instant_policy.data.lerobot_format import POSE_GRIPPER_NAMES, read_episode
+from lerobot_instant_policy.contract import POSE_GRIPPER_NAMES
+from lerobot_instant_policy.data.lerobot_format import read_episode
 from lerobot_instant_policy.data.objects import load_object
 from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
 

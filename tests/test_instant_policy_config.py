@@ -17,7 +17,7 @@ from lerobot_instant_policy.configuration_instant_policy import (
     SHIPPED_ENCODER_DIR,
     InstantPolicyConfig,
 )
-from lerobot_instant_policy.data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.model.occupancy import OccupancyNetwork, save_occupancy_network
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 

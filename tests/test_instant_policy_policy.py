@@ -14,14 +14,13 @@ from scipy.spatial.transform import Rotation
 from synthetic_demos import NUM_FRAMES, make_demonstration, object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from lerobot_instant_policy.data.demonstrations import Demonstration, DemonstrationError
-from lerobot_instant_policy.data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_from_pos_quat, pose_to_pos_quat, transform_points
 from lerobot_instant_policy.modeling_instant_policy import (
     CheckpointMismatchError,
     InstantPolicyPolicy,
     _hold_padded,
-    poses_from_vectors,
 )
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 
@@ -49,7 +48,9 @@ def live_observation(frame: int = 2, batch: int = 1) -> dict:
 
 def relative_actions(observation: dict, chunk: torch.Tensor) -> torch.Tensor:
     """``T_EA (B, T, 4, 4)`` of absolute actions ``chunk (B, T, 8)`` relative to the observed EE pose."""
-    return torch.linalg.inv(poses_from_vectors(observation[STATE_KEY]))[:, None] @ poses_from_vectors(chunk)
+    T_world_ee, _ = poses_from_vectors_torch(observation[STATE_KEY])
+    T_world_actions, _ = poses_from_vectors_torch(chunk)
+    return torch.linalg.inv(T_world_ee)[:, None] @ T_world_actions
 
 
 def moved_pose_rows(G: np.ndarray, rows: np.ndarray) -> np.ndarray:

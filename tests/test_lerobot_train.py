@@ -14,7 +14,7 @@ import pytest
 import torch
 from synthetic_demos import NUM_FRAMES, make_demonstration, object_pose, write_demo_dataset
 
-from lerobot_instant_policy.data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 
 REPO = "local/ip_train_small"
 TRAIN = Path(sys.executable).parent / "lerobot-train"

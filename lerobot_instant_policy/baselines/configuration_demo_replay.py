@@ -8,7 +8,7 @@ from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 
 from ..geometry.registration import RegistrationConfig
 from ..policy_features import (
-    check_contract_features,
+    check_policy_features,
     contract_input_features,
     contract_output_features,
     identity_normalization,
@@ -67,4 +67,4 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
 
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)`` and writes ``action (8,)``."""
-        check_contract_features("demo_replay", self.input_features, self.output_features)
+        check_policy_features("demo_replay", self.input_features, self.output_features)

@@ -15,11 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
-from scipy.spatial.transform import Rotation
 from torch import Tensor
 
+from ..contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors, vectors_from_poses
 from ..data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
-from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 from ..geometry.registration import RegistrationResult, register_rigid
 from .configuration_demo_replay import DemoReplayConfig
 
@@ -138,9 +137,6 @@ def transform_pose_actions(T_now_demo: np.ndarray, actions: np.ndarray) -> np.nd
     Each commanded ``T_world_ee`` becomes ``T_now_demo @ T_world_ee``; the gripper command is kept. Quaternions
     come out normalised with ``w >= 0``.
     """
-    rotation = Rotation.from_matrix(T_now_demo[:3, :3])
-    positions = actions[:, :3].astype(np.float64) @ T_now_demo[:3, :3].T + T_now_demo[:3, 3]
-    quats = (rotation * Rotation.from_quat(actions[:, 3:7].astype(np.float64))).as_quat()
-    quats[quats[:, 3] < 0] *= -1.0
-    return np.concatenate([positions, quats, actions[:, 7:8]], axis=1).astype(np.float32)
+    T_world_ee, gripper_open = poses_from_vectors(actions)
+    return vectors_from_poses(T_now_demo @ T_world_ee, gripper_open).astype(np.float32)
 

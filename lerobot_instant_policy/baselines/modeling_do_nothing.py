@@ -11,7 +11,7 @@ import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
-from ..data.lerobot_format import STATE_KEY
+from ..contract import STATE_KEY
 from .configuration_do_nothing import DoNothingConfig
 
 

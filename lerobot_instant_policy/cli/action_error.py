@@ -43,8 +43,8 @@ import numpy as np
 import torch
 
 from ..configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_INFERENCE_STEPS, SUPPORTED_WAYPOINTS
+from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, DemonstrationError, open_demo_dataset, read_demonstration
-from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
 from ..modeling_instant_policy import InstantPolicyPolicy
 from ..training.loss_curve import LossCurveError, check_pseudo_demo_root, load_policy
 

@@ -18,8 +18,8 @@ def bench_data(repo_id: str, root: str, rows: int = 200, horizon: int = 8, repea
     """Median milliseconds per row of both paths over ``rows`` random rows, in alternation ``repeats`` times."""
     from lerobot.datasets import LeRobotDataset
 
+    from ..contract import ACTION_KEY
     from ..data.action_chunks import ActionChunks
-    from ..data.lerobot_format import ACTION_KEY
 
     plain = LeRobotDataset(repo_id, root=root)
     chunked = LeRobotDataset(repo_id, root=root,

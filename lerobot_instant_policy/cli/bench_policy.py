@@ -16,9 +16,9 @@ import numpy as np
 import torch
 
 from ..configuration_instant_policy import InstantPolicyConfig
+from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from ..data.context_bank import ContextBank, EpisodeWaypoints
 from ..data.demonstrations import Demonstration
-from ..data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 
 
 def _config(preset: str, **overrides) -> InstantPolicyConfig:
@@ -108,7 +108,7 @@ def bench_train_step(
     ``torch.autocast`` with the device's default dtype (bfloat16 on the CPU), as ``lerobot-train
     --policy.use_amp=true`` does."""
     from ..frame_encodings import FrameEncodings
-    from ..modeling_instant_policy import InstantPolicyPolicy, poses_from_vectors
+    from ..modeling_instant_policy import InstantPolicyPolicy
 
     config = _config(preset, min_demos=num_demos, max_demos=num_demos, use_amp=use_amp, **overrides)
     policy = InstantPolicyPolicy(config).to(config.device).train()
@@ -136,9 +136,8 @@ def bench_train_step(
     if frame_cache:  # frames 0 … E·L − 1: the bank's waypoints; then the batch rows
         points = torch.cat([torch.from_numpy(bank.points_world.reshape(-1, P, 3)), batch[POINTCLOUD_KEY]])
         states = torch.cat([torch.from_numpy(np.tile(waypoint_state, (episodes, 1))), batch[STATE_KEY]])
-        positions, features = policy.network.encode_observation(
-            points.to(config.device), poses_from_vectors(states.to(config.device))
-        )
+        T_world_ee, _ = poses_from_vectors_torch(states.to(config.device))
+        positions, features = policy.network.encode_observation(points.to(config.device), T_world_ee)
         encodings = FrameEncodings(None, positions.cpu().numpy(), features.cpu().numpy())
     policy.set_training_bank(bank, frame_encodings=encodings)
     batch = {key: value.to(config.device) for key, value in batch.items()}

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors, vectors_from_poses
 from ..perception.calibration import CalibrationError, load_calibration, save_calibration
 
 
@@ -42,7 +43,7 @@ class ConvertSettings:
     repo_id: str
     calibration: Path | None = None
     num_points: int = 2048
-    state_key: str = "observation.state"
+    state_key: str = STATE_KEY
     action_source: str = "next_state"
     urdf: str | None = None
     joint_key: str | None = None
@@ -90,7 +91,7 @@ def convert(settings: ConvertSettings) -> dict:
     needed = [camera.depth_key for camera in cameras] + [c.mask_key for c in cameras if c.mask_key]
     needed += [key for key in (settings.state_key, settings.joint_key, settings.gripper_key) if key]
     if settings.action_source == "dataset":
-        needed.append("action")
+        needed.append(ACTION_KEY)
     missing = sorted({key for key in needed if key not in features})
     if missing:
         raise ConversionError(f"the dataset at {settings.input_root} lacks {missing}; it has {sorted(features)}")
@@ -145,11 +146,11 @@ def _convert_episodes(source, settings: ConvertSettings, needed: list[str], perc
         clouds, states, actions = [], [], []
         for index in range(start, stop):
             item = source[index]
-            observation = {key: item[key][None] for key in needed if key != "action"}
-            clouds.append(perception(observation)["observation.pointcloud"][0].numpy())
+            observation = {key: item[key][None] for key in needed if key != ACTION_KEY}
+            clouds.append(perception(observation)[POINTCLOUD_KEY][0].numpy())
             states.append(_ee_state(item, settings, robot))
             if settings.action_source == "dataset":
-                actions.append(_contract_vector(item["action"].numpy(), "action"))
+                actions.append(_contract_vector(item[ACTION_KEY].numpy(), ACTION_KEY))
         states = np.stack(states).astype(np.float32)
         actions = np.stack(actions) if actions else np.concatenate([states[1:], states[-1:]])
         write_episode(output, np.stack(clouds), states, actions.astype(np.float32), episode["tasks"][0])
@@ -168,28 +169,22 @@ def _check_cartesian_feature(features: dict, key: str) -> None:
 
 
 def _contract_vector(vector: np.ndarray, name: str) -> np.ndarray:
-    """``vector (8,)`` checked to be a pose (unit quaternion xyzw, w ≥ 0 after sign flip) and gripper in [0, 1]."""
-    vector = np.asarray(vector, dtype=np.float64).copy()
-    norm = np.linalg.norm(vector[3:7])
-    if not np.all(np.isfinite(vector)) or abs(norm - 1.0) > 1e-2:
+    """``vector (8,)`` checked to be a pose (a unit quaternion xyzw) and a gripper in [0, 1], written back by the
+    contract's codec (quaternion normalised, ``w ≥ 0``)."""
+    vector = np.asarray(vector, dtype=np.float64)
+    if not np.all(np.isfinite(vector)) or abs(np.linalg.norm(vector[3:7]) - 1.0) > 1e-2:
         raise ConversionError(f"{name} {vector.tolist()} is not EE xyz + a unit quaternion xyzw + gripper")
     if not 0.0 <= vector[7] <= 1.0:
         raise ConversionError(f"{name} gripper {vector[7]} must be 1 open / 0 closed (map it with --gripper-*)")
-    vector[3:7] /= norm
-    if vector[6] < 0:
-        vector[3:7] *= -1
-    return vector
+    return vectors_from_poses(*poses_from_vectors(vector))
 
 
 def _ee_state(item: dict, settings: ConvertSettings, robot) -> np.ndarray:
-    from ..geometry.se3 import pose_to_pos_quat
-
     if robot is None:
         return _contract_vector(item[settings.state_key].numpy(), settings.state_key)
     joints = item[settings.joint_key].numpy()[: len(settings.joint_names)]
-    position, quat = pose_to_pos_quat(robot.link_pose(joints, settings.ee_link))
     gripper_value = float(item[settings.gripper_key].numpy().reshape(-1)[settings.gripper_index])
-    return np.concatenate([position, quat, [1.0 if gripper_value >= settings.gripper_open_above else 0.0]])
+    return vectors_from_poses(robot.link_pose(joints, settings.ee_link), gripper_value >= settings.gripper_open_above)
 
 
 def _floats(text: str) -> tuple[float, float, float]:
@@ -207,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repo-id", required=True)
     parser.add_argument("--calibration", type=Path, help="camera calibration JSON (default: the dataset's metadata)")
     parser.add_argument("--num-points", type=int, default=2048)
-    parser.add_argument("--state-key", default="observation.state", help="Cartesian EE state (8,)")
+    parser.add_argument("--state-key", default=STATE_KEY, help="Cartesian EE state (8,)")
     parser.add_argument("--action-source", choices=("next_state", "dataset"), default="next_state")
     parser.add_argument("--urdf", help="robot URDF: removes the robot's links from the clouds (and --ee-link: FK)")
     parser.add_argument("--joint-key", help="the joint state key (first len(--joint-names) entries are used)")

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry.se3 import pose_from_pos_quat
+from ..contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors
 
 
 def predict_episode(policy, preprocessor, postprocessor, demo) -> np.ndarray:
@@ -31,8 +31,8 @@ def predict_episode(policy, preprocessor, postprocessor, demo) -> np.ndarray:
     actions = []
     for frame in range(demo.num_frames):
         batch = {
-            "observation.pointcloud": torch.from_numpy(demo.points_world[frame])[None],
-            "observation.state": torch.from_numpy(demo.state[frame])[None],
+            POINTCLOUD_KEY: torch.from_numpy(demo.points_world[frame])[None],
+            STATE_KEY: torch.from_numpy(demo.state[frame])[None],
             "task": [demo.task],
         }
         with torch.inference_mode():
@@ -49,7 +49,7 @@ def draw_dry_run(demo, predicted: np.ndarray, path: Path, title: str) -> None:
     import matplotlib.pyplot as plt
 
     cloud, recorded = demo.points_world[0], demo.state[:, :3]
-    start = pose_from_pos_quat(demo.state[0, :3], demo.state[0, 3:7])
+    start, _ = poses_from_vectors(demo.state[0])
     figure, axes = plt.subplots(1, 2, figsize=(11, 5))
     for axis, (i, j, names) in zip(axes, [(0, 1, "top view: x, y (m)"), (0, 2, "side view: x, z (m)")], strict=True):
         axis.scatter(cloud[:, i], cloud[:, j], s=1, c="0.6", label="cloud, first frame")

@@ -36,7 +36,8 @@ def depth_key(camera_index: int) -> str:
 def rgbd_features(env) -> dict[str, dict]:
     """LeRobot features of an rgbd recording of ``env``: state, action, joint state, one depth image per camera
     (uint16 mm, flagged ``is_depth_map``, with its ``camera_calibration`` in ``info``)."""
-    from ..data.lerobot_format import ACTION_KEY, STATE_KEY, contract_features
+    from ..contract import ACTION_KEY, STATE_KEY
+    from ..data.lerobot_format import contract_features
     from ..perception.calibration import CALIBRATION_INFO_KEY, CameraCalibration
     from ..sim.robot import JOINT_NAMES
 
@@ -70,7 +71,7 @@ def rgbd_features(env) -> dict[str, dict]:
 
 
 def _write_rgbd(dataset, episode) -> None:
-    from ..data.lerobot_format import ACTION_KEY, STATE_KEY
+    from ..contract import ACTION_KEY, STATE_KEY
 
     for index in range(episode.num_frames):
         frame = {
@@ -165,7 +166,7 @@ def record(
 
 
 def _write_with_images(dataset, episode) -> None:
-    from ..data.lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+    from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 
     for index in range(episode.num_frames):
         dataset.add_frame(

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..contract import ACTION_KEY
 from .demonstrations import DemonstrationError, open_demo_dataset
-from .lerobot_format import ACTION_KEY
 
 
 class ActionChunks:

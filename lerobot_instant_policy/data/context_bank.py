@@ -25,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
+from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors
 from .demonstrations import Demonstration, DemonstrationError, open_demo_dataset
-from .lerobot_format import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from .waypoints import StopCriterion, extract_waypoints
 
 Encoded = torch.Tensor | tuple[torch.Tensor, ...]
@@ -336,12 +335,10 @@ def _poses_and_gripper(state: np.ndarray, action: np.ndarray, where: str) -> tup
     """``T_world_ee (F, 4, 4)`` from ``state (F, 8)`` and the commanded gripper state ``(F,)`` (see module doc)."""
     if not (np.isfinite(state).all() and np.isfinite(action).all()):
         raise DemonstrationError(f"{where}: {STATE_KEY} or {ACTION_KEY} contains NaN or infinite values")
-    T_world_ee = np.tile(np.eye(4), (len(state), 1, 1))
     try:
-        T_world_ee[:, :3, :3] = Rotation.from_quat(state[:, 3:7].astype(np.float64)).as_matrix()
+        T_world_ee, _ = poses_from_vectors(state)
     except ValueError as error:
         raise DemonstrationError(f"{where}: {STATE_KEY} holds an invalid EE quaternion ({error})") from error
-    T_world_ee[:, :3, 3] = state[:, :3]
     gripper_open = np.concatenate([state[:1, 7], action[:-1, 7]]).astype(np.float64)
     return T_world_ee, gripper_open
 

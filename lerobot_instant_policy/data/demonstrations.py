@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .lerobot_format import ACTION_KEY, POINTCLOUD_KEY, POSE_GRIPPER_NAMES, STATE_KEY, read_episode
+from ..contract import ACTION_KEY, POINTCLOUD_KEY, POSE_GRIPPER_NAMES, POSE_GRIPPER_SHAPE, STATE_KEY
+from .lerobot_format import read_episode
 
 
 class DemonstrationError(ValueError):
@@ -109,7 +110,7 @@ def open_demo_dataset(repo_id: str, root: str | Path):
     from lerobot.datasets import LeRobotDataset
 
     dataset = LeRobotDataset(repo_id, root=root)
-    check_contract_features(dataset.meta.features, root)
+    check_dataset_features(dataset.meta.features, root)
     return dataset
 
 
@@ -167,13 +168,13 @@ def batch_task_names(tasks, batch_size: int, policy: str, only_task: str | None)
     return tasks
 
 
-def check_contract_features(features: dict[str, dict], root: str | Path) -> None:
+def check_dataset_features(features: dict[str, dict], root: str | Path) -> None:
     """Raise ``DemonstrationError`` naming every way ``features`` (LeRobot dataset metadata) break DESIGN §4."""
     problems = []
     expected = {
         POINTCLOUD_KEY: ("(P, 3)", lambda shape: len(shape) == 2 and shape[1] == 3 and shape[0] > 0, None),
-        STATE_KEY: ("(8,)", lambda shape: shape == (8,), POSE_GRIPPER_NAMES),
-        ACTION_KEY: ("(8,)", lambda shape: shape == (8,), POSE_GRIPPER_NAMES),
+        STATE_KEY: (str(POSE_GRIPPER_SHAPE), lambda shape: shape == POSE_GRIPPER_SHAPE, POSE_GRIPPER_NAMES),
+        ACTION_KEY: (str(POSE_GRIPPER_SHAPE), lambda shape: shape == POSE_GRIPPER_SHAPE, POSE_GRIPPER_NAMES),
     }
     for key, (shape_text, shape_ok, names) in expected.items():
         feature = features.get(key)

@@ -1,4 +1,4 @@
-"""The data contract (DESIGN §4) as LeRobot dataset features, and writing demonstrations into a dataset."""
+"""The data contract (:mod:`..contract`) as LeRobot dataset features, and writing demonstrations into a dataset."""
 
 from __future__ import annotations
 
@@ -7,19 +7,24 @@ from pathlib import Path
 
 import numpy as np
 
-POINTCLOUD_KEY = "observation.pointcloud"
-STATE_KEY = "observation.state"
-ACTION_KEY = "action"
-POSE_GRIPPER_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]
-NUM_POINTS = 2048
+from ..contract import (
+    ACTION_KEY,
+    NUM_POINTS,
+    POINTCLOUD_KEY,
+    POINTCLOUD_NAMES,
+    POSE_GRIPPER_NAMES,
+    POSE_GRIPPER_SHAPE,
+    STATE_KEY,
+)
+
 DEFAULT_FPS = 10
 
 
 def contract_features(num_points: int = NUM_POINTS) -> dict[str, dict]:
     """LeRobot ``features`` for the point cloud, the EE state and the EE action (world frame, metres)."""
-    pose = {"dtype": "float32", "shape": (8,), "names": list(POSE_GRIPPER_NAMES)}
+    pose = {"dtype": "float32", "shape": POSE_GRIPPER_SHAPE, "names": list(POSE_GRIPPER_NAMES)}
     return {
-        POINTCLOUD_KEY: {"dtype": "float32", "shape": (num_points, 3), "names": ["point", "xyz"]},
+        POINTCLOUD_KEY: {"dtype": "float32", "shape": (num_points, 3), "names": list(POINTCLOUD_NAMES)},
         STATE_KEY: dict(pose),
         ACTION_KEY: dict(pose),
     }

@@ -12,8 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..contract import vectors_from_poses
 from ..geometry.sampling import resample_indices
-from ..geometry.se3 import invert, look_rotation, make_pose, pose_to_pos_quat, transform_points
+from ..geometry.se3 import invert, look_rotation, make_pose, transform_points
 from .objects import ObjectModel
 from .pseudo_tasks import GRASP_REACH, PseudoTask, Waypoint
 from .rendering import PointCloudRenderer
@@ -246,8 +247,12 @@ def _render(
         chosen = resample_indices(cloud, config.num_points, rng)
         points[index] = cloud[chosen]
         labels[index] = cloud_labels[chosen]
-    state = np.stack([_pose_vector(step.T_world_ee, step.gripper_open) for step in steps])
-    action = np.stack([_pose_vector(step.action_T_world_ee, step.action_gripper_open) for step in steps])
+    state = vectors_from_poses(
+        np.stack([step.T_world_ee for step in steps]), np.array([step.gripper_open for step in steps])
+    ).astype(np.float32)
+    action = vectors_from_poses(
+        np.stack([step.action_T_world_ee for step in steps]), np.array([step.action_gripper_open for step in steps])
+    ).astype(np.float32)
     return PseudoDemo(task, layout, points, labels, state, action, T_world_objects, held)
 
 
@@ -269,11 +274,6 @@ def _frames_of(steps: list[Step], waypoint_poses: list[np.ndarray]) -> list[int]
             index += 1
         frames.append(index)
     return frames
-
-
-def _pose_vector(T_world_ee: np.ndarray, gripper_open: bool) -> np.ndarray:
-    position, quat = pose_to_pos_quat(T_world_ee)
-    return np.concatenate([position, quat, [1.0 if gripper_open else 0.0]]).astype(np.float32)
 
 
 def _nearest_within_reach(T_world_ee: np.ndarray, objects: list[ObjectModel], T_world_objects: np.ndarray) -> int:

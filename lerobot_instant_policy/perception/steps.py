@@ -23,9 +23,8 @@ import torch
 from lerobot.configs import FeatureType, PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry
 
-from ..data.lerobot_format import POINTCLOUD_KEY, STATE_KEY
+from ..contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors
 from ..geometry.sampling import resample_points
-from ..geometry.se3 import pose_from_pos_quat
 from .calibration import CalibrationError, check_extrinsics, check_intrinsics, load_calibration
 from .depth import DepthRange, backproject, check_depth_metres
 from .robot_model import RobotModel
@@ -253,9 +252,8 @@ class RemoveGripperStep(_CloudSegmentationStep):
     high: tuple[float, float, float] = (0.045, 0.12, -0.035)
 
     def keep(self, points, observation, row):
-        state = require(observation, STATE_KEY, type(self).__name__, 2, "(B, 8)")[row].astype(np.float64)
-        pose = pose_from_pos_quat(state[:3], state[3:7])
-        return outside_gripper_box(points, pose, np.asarray(self.low), np.asarray(self.high))
+        T_world_ee, _ = poses_from_vectors(require(observation, STATE_KEY, type(self).__name__, 2, "(B, 8)")[row])
+        return outside_gripper_box(points, T_world_ee, np.asarray(self.low), np.asarray(self.high))
 
 
 @ProcessorStepRegistry.register(name="ip_resample_pointcloud")

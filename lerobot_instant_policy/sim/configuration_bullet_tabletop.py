@@ -2,8 +2,8 @@
 
 ``lerobot-eval --env.type=bullet_tabletop --env.task=NAME`` builds ``eval.batch_size`` envs of task ``NAME``.
 LeRobot turns the env observation ``agent_pos`` into ``observation.state`` (B, 8) and ``pointcloud`` into
-``observation.pointcloud`` (B, 2048, 3); the action feature is (8,), DESIGN §4. This module stays light: the
-simulator is imported only when envs are created.
+``observation.pointcloud`` (B, 2048, 3); the action feature is (8,): the data contract of :mod:`..contract`. This
+module stays light: the simulator is imported only when envs are created.
 
 ``--env.obs_type=rgbd`` makes the env hand out depth images, camera parameters and the joint state instead of
 the segmented cloud; its env preprocessor (``get_env_processors``) then builds ``observation.pointcloud`` with
@@ -18,9 +18,9 @@ from functools import partial
 
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_STATE
 
-POINTCLOUD_FEATURE = "observation.pointcloud"
+from ..contract import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
+
 OBS_TYPES = ("pointcloud", "rgbd")  # segmented clouds from the simulator, or raw depth (see sim.env)
 
 
@@ -49,7 +49,7 @@ class BulletTabletopEnvConfig(EnvConfig):
     task: str | None = "pick_and_lift"
     fps: int = 10
     episode_length: int | None = None
-    num_points: int = 2048
+    num_points: int = NUM_POINTS
     task_module: str | None = None
     max_translation_step: float = 0.02
     max_rotation_step_deg: float = 6.0
@@ -62,7 +62,7 @@ class BulletTabletopEnvConfig(EnvConfig):
     calibration_error_rotation_deg: float = 0.0
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(
-        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "pointcloud": POINTCLOUD_FEATURE}
+        default_factory=lambda: {ACTION_KEY: ACTION_KEY, "agent_pos": STATE_KEY, "pointcloud": POINTCLOUD_KEY}
     )
 
     def __post_init__(self):
@@ -71,8 +71,8 @@ class BulletTabletopEnvConfig(EnvConfig):
         if self.obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
         self.features = {
-            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(8,)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(8,)),
+            ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=POSE_GRIPPER_SHAPE),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=POSE_GRIPPER_SHAPE),
             "pointcloud": PolicyFeature(type=FeatureType.STATE, shape=(self.num_points, 3)),
         }
 
@@ -122,7 +122,7 @@ class BulletTabletopEnvConfig(EnvConfig):
         return {self.task: {0: vector_env}}
 
 
-def rgbd_perception_config(num_points: int = 2048):
+def rgbd_perception_config(num_points: int = NUM_POINTS):
     """The perception settings for ``bullet_tabletop``'s rgbd observations: the env's workspace box (down to just
     below the table top, so that RANSAC sees the table), the Panda removed by its joint state."""
     from ..perception.pipeline import PerceptionConfig

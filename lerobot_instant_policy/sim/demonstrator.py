@@ -6,13 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.se3 import (
-    look_rotation,
-    make_pose,
-    pose_distance,
-    pose_to_pos_quat,
-    slerp_rotations,
-)
+from ..contract import vectors_from_poses
+from ..geometry.se3 import look_rotation, make_pose, pose_distance, slerp_rotations
 
 MAX_DEMO_TRANSLATION = 0.01
 MAX_DEMO_ROTATION = np.radians(3.0)
@@ -78,15 +73,10 @@ def interpolate_waypoints(
         for index, fraction in enumerate(fractions):
             position = (1 - fraction) * T_previous[:3, 3] + fraction * waypoint.T_world_ee[:3, 3]
             command = waypoint.gripper_open if index == steps - 1 else gripper
-            actions.append(_action(make_pose(position, rotations[index]), command))
+            actions.append(vectors_from_poses(make_pose(position, rotations[index]), command))
         hold = waypoint.hold_steps
         if hold is None:
             hold = GRIPPER_HOLD_STEPS if waypoint.gripper_open != gripper else 0
         actions.extend([actions[-1]] * hold)
         T_previous, gripper = waypoint.T_world_ee, waypoint.gripper_open
     return np.asarray(actions, dtype=np.float64).reshape(-1, 8)
-
-
-def _action(T_world_ee: np.ndarray, gripper_open: bool) -> np.ndarray:
-    position, quat = pose_to_pos_quat(T_world_ee)
-    return np.concatenate([position, quat, [1.0 if gripper_open else 0.0]])

@@ -30,6 +30,7 @@ import numpy as np
 import pybullet
 from scipy.spatial.transform import Rotation
 
+from ..contract import NUM_POINTS, POSE_GRIPPER_SHAPE, poses_from_vectors, vectors_from_poses
 from ..data.rendering import (
     CameraConfig,
     camera_projection_matrix,
@@ -54,7 +55,7 @@ _GL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 class BulletTabletopConfig:
     """Settings of one env (the LeRobot ``EnvConfig`` passes these through)."""
 
-    num_points: int = 2048
+    num_points: int = NUM_POINTS
     fps: int = 10
     max_translation_step: float = 0.02
     max_rotation_step_deg: float = 6.0
@@ -252,23 +253,23 @@ class BulletTabletopEnv(gym.Env):
 
     def agent_pos(self) -> np.ndarray:
         """The ``(8,)`` float32 state of DESIGN §4 (EE pose in the world frame, gripper open flag)."""
-        position, quat = pose_to_pos_quat(self.robot.ee_pose())
-        return np.concatenate([position, quat, [1.0 if self.robot.gripper_open else 0.0]]).astype(np.float32)
+        return vectors_from_poses(self.robot.ee_pose(), self.robot.gripper_open).astype(np.float32)
 
     # --- internals -------------------------------------------------------------------------------------
 
     def _validate_action(self, action) -> tuple[np.ndarray, bool]:
         action = np.asarray(action, dtype=np.float64)
-        if action.shape != (8,):
+        if action.shape != POSE_GRIPPER_SHAPE:
             raise ValueError(
                 f"bullet_tabletop action must have shape (8,) (EE xyz, quat xyzw, gripper), got {action.shape}"
             )
         if not np.all(np.isfinite(action)):
             raise ValueError(f"bullet_tabletop action contains NaN or inf: {action.tolist()}")
-        quat_norm = np.linalg.norm(action[3:7])
-        if quat_norm < 1e-6:
-            raise ValueError(f"bullet_tabletop action has a zero quaternion: {action[3:7].tolist()}")
-        return make_pose(action[:3], Rotation.from_quat(action[3:7] / quat_norm)), bool(action[7] >= 0.5)
+        try:
+            T_world_ee, gripper_open = poses_from_vectors(action)
+        except ValueError as error:
+            raise ValueError(f"bullet_tabletop action has a zero quaternion: {action[3:7].tolist()}") from error
+        return T_world_ee, bool(gripper_open >= 0.5)
 
     def _bounded_step(self, target: np.ndarray) -> tuple[np.ndarray, bool]:
         """Move from the current EE pose toward ``target`` by at most the configured translation / rotation."""
@@ -287,7 +288,7 @@ class BulletTabletopEnv(gym.Env):
         return make_pose(position, rotation), True
 
     def _observation_spaces(self) -> dict[str, gym.spaces.Box]:
-        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (8,), np.float32)}
+        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, POSE_GRIPPER_SHAPE, np.float32)}
         if self.config.obs_type == "pointcloud":
             spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (self.config.num_points, 3), np.float32)
             return spaces

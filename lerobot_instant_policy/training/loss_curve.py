@@ -36,10 +36,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..contract import ACTION_KEY
 from ..data.context_bank import ContextBank
-from ..data.demonstrations import check_contract_features
+from ..data.demonstrations import check_dataset_features
 from ..data.generation import DEMOS_FILE, TASKS_FILE
-from ..data.lerobot_format import ACTION_KEY
 from ..modeling_instant_policy import InstantPolicyPolicy
 
 POLICY_TYPE = "instant_policy"
@@ -213,7 +213,7 @@ def load_evaluation_set(name: str, root: str | Path, config, samples: int, seed:
     root = check_pseudo_demo_root(root)
     repo_id = repo_id or f"local/{root.name}"
     meta = LeRobotDatasetMetadata(repo_id, root=root)
-    check_contract_features(meta.features, root)
+    check_dataset_features(meta.features, root)
     rng = np.random.default_rng(seed)
     indices = np.sort(rng.choice(meta.total_frames, size=min(samples, meta.total_frames), replace=False))
     return EvaluationSet(name, repo_id, meta, config, indices)

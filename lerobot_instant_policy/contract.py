@@ -1,0 +1,90 @@
+"""The data contract (DESIGN §4): the LeRobot feature keys, their shapes and names, and the one codec of the 8-vector.
+
+Every frame has ``observation.pointcloud (P, 3)`` (segmented object points, world frame, metres),
+``observation.state (8,)`` (the EE pose in the world frame and the gripper state) and ``action (8,)`` (the commanded
+EE pose for the next step and the gripper command, same layout). The 8-vector is the position xyz (m), the
+orientation quaternion xyzw (written with ``w ≥ 0``), then the gripper (1 open, 0 closed).
+
+The codec turns vectors ``(..., 8)`` into ``T_world_ee (..., 4, 4)`` (maps points in the EE frame to the world frame)
+and the gripper ``(...)``, and back: :func:`poses_from_vectors` / :func:`vectors_from_poses` in numpy (float64),
+:func:`poses_from_vectors_torch` / :func:`vectors_from_poses_torch` in torch (the input's dtype and device).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import roma
+import torch
+from scipy.spatial.transform import Rotation
+
+from .geometry.rigid_torch import make_rigid
+
+POINTCLOUD_KEY = "observation.pointcloud"
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+
+NUM_POINTS = 2048
+POINTCLOUD_NAMES = ["point", "xyz"]
+POSE_GRIPPER_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]
+POSE_GRIPPER_SHAPE = (len(POSE_GRIPPER_NAMES),)
+
+_POSITION = slice(0, 3)
+_QUATERNION = slice(3, 7)
+_GRIPPER = 7
+_MIN_QUATERNION_NORM = 1e-6
+_ZERO_QUATERNION = "an EE pose has a zero quaternion (entries 3…6, xyzw); poses must hold unit quaternions"
+
+
+def poses_from_vectors(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``vectors (..., 8)`` → ``T_world_ee (..., 4, 4)`` and ``gripper_open (...)``, float64; the quaternion is
+    normalised. A zero quaternion raises ``ValueError``."""
+    vectors = _checked_vectors(np.asarray(vectors, dtype=np.float64))
+    quaternion = vectors[..., _QUATERNION]
+    if bool((np.linalg.norm(quaternion, axis=-1) < _MIN_QUATERNION_NORM).any()):
+        raise ValueError(_ZERO_QUATERNION)
+    batch = vectors.shape[:-1]
+    T_world_ee = np.zeros((*batch, 4, 4))
+    T_world_ee[..., :3, :3] = Rotation.from_quat(quaternion.reshape(-1, 4)).as_matrix().reshape(*batch, 3, 3)
+    T_world_ee[..., :3, 3] = vectors[..., _POSITION]
+    T_world_ee[..., 3, 3] = 1.0
+    return T_world_ee, vectors[..., _GRIPPER].copy()
+
+
+def vectors_from_poses(T_world_ee: np.ndarray, gripper_open: np.ndarray | float | bool) -> np.ndarray:
+    """``T_world_ee (..., 4, 4)`` and ``gripper_open (...)`` (a bool for one pose too) → ``(..., 8)`` float64: xyz,
+    quaternion xyzw with ``w ≥ 0``, gripper."""
+    T_world_ee = np.asarray(T_world_ee, dtype=np.float64)
+    batch = T_world_ee.shape[:-2]
+    quaternion = Rotation.from_matrix(T_world_ee[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(*batch, 4)
+    quaternion = np.where(quaternion[..., 3:4] < 0, -quaternion, quaternion)
+    gripper = np.broadcast_to(np.asarray(gripper_open, dtype=np.float64), batch)
+    return np.concatenate([T_world_ee[..., :3, 3], quaternion, gripper[..., None]], axis=-1)
+
+
+def poses_from_vectors_torch(vectors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``vectors (..., 8)`` → ``T_world_ee (..., 4, 4)`` and ``gripper_open (...)`` in the vectors' dtype and device;
+    the quaternion is normalised. A zero quaternion raises ``ValueError``."""
+    _checked_vectors(vectors)
+    quaternion = vectors[..., _QUATERNION]
+    norm = quaternion.norm(dim=-1, keepdim=True)
+    if bool((norm < _MIN_QUATERNION_NORM).any()):
+        raise ValueError(_ZERO_QUATERNION)
+    return make_rigid(roma.unitquat_to_rotmat(quaternion / norm), vectors[..., _POSITION]), vectors[..., _GRIPPER]
+
+
+def vectors_from_poses_torch(T_world_ee: torch.Tensor, gripper_open: torch.Tensor) -> torch.Tensor:
+    """``T_world_ee (..., 4, 4)`` and ``gripper_open (...)`` → ``(..., 8)`` in the poses' dtype: xyz, quaternion xyzw
+    with ``w ≥ 0``, gripper."""
+    quaternion = roma.rotmat_to_unitquat(T_world_ee[..., :3, :3])
+    quaternion = torch.where(quaternion[..., 3:4] < 0, -quaternion, quaternion)
+    return torch.cat([T_world_ee[..., :3, 3], quaternion, gripper_open[..., None].to(T_world_ee.dtype)], dim=-1)
+
+
+def _checked_vectors(vectors):
+    """``vectors`` (numpy or torch), after checking that their last axis is the 8-vector."""
+    if vectors.ndim < 1 or vectors.shape[-1] != POSE_GRIPPER_SHAPE[0]:
+        raise ValueError(
+            f"EE pose vectors must have shape (..., {POSE_GRIPPER_SHAPE[0]}) (xyz, quaternion xyzw, gripper), "
+            f"got {tuple(vectors.shape)}"
+        )
+    return vectors
