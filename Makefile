@@ -49,11 +49,12 @@ train: train-data
 		--val-root outputs/pseudo_demos_val --samples 128 --out docs/training_curve.png
 
 # Issue 11's CPU proof (docs/results.md, "In-context learning"): rung RUNG of the pseudo-task ladder (1: reach,
-# 2: reach_grip), held-out pseudo-tasks on held-out objects, LADDER_STEPS steps of batch 8 (about 30 min on 2 cores),
-# then the action error against holding still and the context gain. Generation and training resume where they stopped.
+# 2: reach_grip), held-out pseudo-tasks on held-out objects, LADDER_STEPS steps of batch 8 in bfloat16 with the
+# action nodes seeing the scene through the current nodes only (the best held-out context gain measured; 26 min on
+# 2 cores), then the action error against holding still and the context gain. Generation and training resume.
 RUNG ?= 1
 RUNG_NAME = $(if $(filter 1,$(RUNG)),rung1_reach,rung2_reach_grip)
-LADDER_STEPS ?= 2200
+LADDER_STEPS ?= 8000
 LADDER_DIR = outputs/train/$(RUNG_NAME)
 ladder: $(INSTALLED)
 	test -d outputs/$(RUNG_NAME)_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
@@ -64,11 +65,12 @@ ladder: $(INSTALLED)
 		--config_path=$(LADDER_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
 		--policy.type=instant_policy --policy.preset=small --policy.reencode_action_clouds=false \
 		--policy.max_demos=2 --policy.optimizer_lr=1e-3 --policy.scheduler_warmup_steps=100 \
+		--policy.use_amp=true --policy.action_scene_graph=false \
 		--dataset.repo_id=local/$(RUNG_NAME)_train --dataset.root=outputs/$(RUNG_NAME)_train \
-		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=200 --seed=1 \
+		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=1000 --seed=1 \
 		--wandb.enable=false --output_dir=$(LADDER_DIR))
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-action-error --policy-path $(LADDER_DIR)/checkpoints/last/pretrained_model \
-		--root outputs/$(RUNG_NAME)_val --tasks 12 --frames-per-task 4 --K 4 --N 2 --L 10 --json
+		--root outputs/$(RUNG_NAME)_val --tasks 24 --frames-per-task 4 --K 4 --N 2 --L 10 --no-untrained --json
 
 # docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
 # every task, 10 episodes each (issue 14's RGB-D vs segmented table).

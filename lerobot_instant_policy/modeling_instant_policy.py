@@ -59,12 +59,15 @@ class DemoContext:
     """The demonstrations of one task, ready for the network (a leading batch axis of 1, expanded per batch):
     ``T_world_ee (1, N, L, 4, 4)``, ``gripper_open (1, N, L)`` and the frozen encoder's scene nodes of every waypoint
     in its EE frame, ``scene_positions (1, N, L, M, 3)`` and ``scene_features (1, N, L, M, D)``, on the policy's
-    device."""
+    device. ``waypoint_features (1, N, L, K, H)`` is σ's output on the waypoints' local graphs, valid for the weights
+    identified by ``weights_version`` (see :meth:`InstantPolicyPolicy.demo_waypoint_features`)."""
 
     T_world_ee: Tensor
     gripper_open: Tensor
     scene_positions: Tensor
     scene_features: Tensor
+    waypoint_features: Tensor | None = None
+    weights_version: tuple | None = None
 
     @property
     def num_demos(self) -> int:
@@ -232,10 +235,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 points_world[rows],
                 T_world_ee[rows],
                 gripper[rows],
-                demo_geometry=(
-                    demos.scene_positions.expand(count, -1, -1, -1, -1),
-                    demos.scene_features.expand(count, -1, -1, -1, -1),
-                ),
+                demo_waypoint_features=self.demo_waypoint_features(demos).expand(count, -1, -1, -1, -1),
             )
             T_ee_actions, action_gripper = self.network.sample_actions(
                 context, num_inference_steps=self.config.inference_steps, generator=generator
@@ -384,6 +384,18 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             self._demo_contexts[task] = self._make_demo_context(demonstrations, num_waypoints)
             logger.info("instant_policy: %d demonstrations of task %r encoded", len(demonstrations), task)
         return self._demo_contexts[task]
+
+    def demo_waypoint_features(self, demos: DemoContext) -> Tensor:
+        """σ on a task's demonstration waypoints, ``(1, N, L, K, H)``: it depends on the weights but not on the live
+        observation, so it is computed once per task and reused at every control step until the weights change (an
+        optimizer step or a checkpoint load changes their version)."""
+        version = tuple((p.device, p.dtype, p._version) for p in self.network.parameters())
+        if demos.waypoint_features is None or demos.weights_version != version:
+            demos.waypoint_features = self.network.encode_demo_waypoints(
+                (demos.scene_positions, demos.scene_features), demos.gripper_open
+            )
+            demos.weights_version = version
+        return demos.waypoint_features
 
     def _make_demo_context(self, demonstrations: list[Demonstration], num_waypoints: int) -> DemoContext:
         low, high = SUPPORTED_DEMOS

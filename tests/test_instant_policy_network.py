@@ -274,6 +274,20 @@ def test_cached_demo_geometry_gives_the_same_context():
     )
     torch.testing.assert_close(from_cache.current_gripper_features, cached.current_gripper_features)
 
+    # σ on the demonstrations alone, handed in (a policy's per-task cache), gives the joint computation's context.
+    waypoints = network.encode_demo_waypoints(geometry, batch["demo_gripper"])
+    assert waypoints.shape == (*batch["demo_gripper"].shape, 6, network.config.hidden_dim)
+    from_waypoints = network.encode_context(
+        None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
+        batch["gripper"], demo_waypoint_features=waypoints,
+    )
+    torch.testing.assert_close(from_waypoints.current_gripper_features, cached.current_gripper_features)
+    with pytest.raises(ValueError, match="demo waypoint features"):
+        network.encode_context(
+            None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
+            batch["gripper"], demo_waypoint_features=waypoints[:, :1],
+        )
+
 
 @pytest.mark.parametrize("action_scene_graph", [True, False])
 def test_without_the_action_scene_graph_actions_see_the_scene_only_through_the_current_nodes(action_scene_graph):

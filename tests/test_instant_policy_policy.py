@@ -307,6 +307,38 @@ def _predict(policy: InstantPolicyPolicy) -> torch.Tensor:
     return policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(5))
 
 
+def test_sigma_on_the_demonstrations_runs_once_per_task_and_again_after_the_weights_change(monkeypatch):
+    torch.manual_seed(0)
+    model = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", reencode_action_clouds=False)).eval()
+    calls = []
+    encode = model.network.encode_demo_waypoints
+    monkeypatch.setattr(model.network, "encode_demo_waypoints", lambda *args: calls.append(1) or encode(*args))
+    first = _predict(model)
+    again = model.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(5))
+    assert len(calls) == 1 and torch.equal(first, again)
+    # The cached σ features give what the joint computation (σ on demos and live frame together) gives.
+    demos = model.demo_context(TASK)
+    observation = live_observation()
+    T_world_ee, gripper = poses_from_vectors_torch(observation[STATE_KEY])
+    with torch.no_grad():
+        joint = model.network.encode_context(
+            None, demos.T_world_ee, demos.gripper_open, observation[POINTCLOUD_KEY], T_world_ee, gripper,
+            demo_geometry=(demos.scene_positions, demos.scene_features),
+        )
+        cached = model.network.encode_context(
+            None, demos.T_world_ee, demos.gripper_open, observation[POINTCLOUD_KEY], T_world_ee, gripper,
+            demo_waypoint_features=model.demo_waypoint_features(demos),
+        )
+    torch.testing.assert_close(cached.current_gripper_features, joint.current_gripper_features)
+    # An optimizer step changes σ's weights: the cached features are recomputed, not reused.
+    optimizer = torch.optim.SGD(model.get_optim_params(), lr=0.1)
+    for parameter in model.get_optim_params():
+        parameter.grad = torch.ones_like(parameter)
+    optimizer.step()
+    model.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(5))
+    assert len(calls) == 2  # the comparison reused the cache; the step forced a second computation
+
+
 def test_save_and_load_round_trip_with_processors(policy, tmp_path):
     from lerobot.processor import PolicyProcessorPipeline
     from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action

@@ -349,6 +349,36 @@ class InstantPolicyNetwork(nn.Module):
         self._check_tensor("demo_T_world_ee", demo_T_world_ee, (batch, num_demos, demo_length, 4, 4))
         return self.encode_clouds(transform_points(invert_rigid(demo_T_world_ee), demo_points_world))
 
+    def encode_demo_waypoints(
+        self, demo_geometry: tuple[torch.Tensor, torch.Tensor], demo_gripper: torch.Tensor
+    ) -> torch.Tensor:
+        """σ on the demonstrations' local graphs alone: scene nodes (positions ``(B, N, L, M, 3)`` and features
+        ``(B, N, L, M, D)``, from :meth:`encode_demo_geometry` or a cache) and gripper states ``(B, N, L)`` → the demo
+        gripper nodes' features ``(B, N, L, K, H)``. It does not depend on the live observation, so at inference it
+        is computed once per task (and weights) and handed to :meth:`encode_context` at every control step."""
+        if demo_gripper.ndim != 3:
+            raise ValueError(f"demo_gripper must have shape (B, N, L), got {tuple(demo_gripper.shape)}")
+        batch, num_demos, demo_length = demo_gripper.shape
+        self.check_demo_size(num_demos, demo_length)
+        self._check_scene_nodes("demo", *demo_geometry, (batch, num_demos, demo_length))
+        return self._observation_gripper_features(*demo_geometry, demo_gripper, leading=(batch, num_demos, demo_length))
+
+    def _check_scene_nodes(self, name: str, positions: torch.Tensor, features: torch.Tensor, leading: tuple) -> None:
+        num_scene = self.config.encoder.num_nodes
+        self._check_tensor(f"{name} scene positions", positions, (*leading, num_scene, 3))
+        self._check_tensor(f"{name} scene features", features, (*leading, num_scene, self.config.encoder.feature_dim))
+
+    def _observation_gripper_features(
+        self, positions: torch.Tensor, features: torch.Tensor, gripper_open: torch.Tensor, leading: tuple[int, ...]
+    ) -> torch.Tensor:
+        """σ on observed frames ``leading``: scene nodes ``(*leading, M, 3)``, ``(*leading, M, D)`` and gripper states
+        ``leading`` → gripper features ``(*leading, K, H)``."""
+        out = self._local_gripper_features(
+            positions.flatten(0, len(leading) - 1), features.flatten(0, len(leading) - 1),
+            self.observation_gripper_features(gripper_open).flatten(0, len(leading) - 1),
+        )
+        return out.view(*leading, self.num_keypoints, -1)
+
     def encode_context(
         self,
         demo_points_world: torch.Tensor | None,
@@ -359,6 +389,7 @@ class InstantPolicyNetwork(nn.Module):
         gripper: torch.Tensor,
         demo_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
         scene_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
+        demo_waypoint_features: torch.Tensor | None = None,
     ) -> InstantPolicyContext:
         """Run everything that does not depend on the noisy actions: encoder, σ on demo and current graphs, φ.
 
@@ -375,6 +406,9 @@ class InstantPolicyNetwork(nn.Module):
             scene_geometry: the live cloud's scene nodes in the current EE frame, positions ``(B, M, 3)`` and
                 features ``(B, M, D)`` as :meth:`encode_observation` gives them (e.g. from a cache); None encodes
                 ``points_world``.
+            demo_waypoint_features: σ's output on the demonstrations' local graphs, ``(B, N, L, K, H)`` from
+                :meth:`encode_demo_waypoints` with the current weights (a policy computes it once per task); None runs
+                σ on them here, in one batch with the current frame (training).
         """
         if demo_T_world_ee.ndim != 5:
             raise ValueError(f"demo_T_world_ee must have shape (B, N, L, 4, 4), got {tuple(demo_T_world_ee.shape)}")
@@ -385,29 +419,31 @@ class InstantPolicyNetwork(nn.Module):
         self._check_cloud("points_world", points_world, (batch,))
         self._check_tensor("T_world_ee", T_world_ee, (batch, 4, 4))
         self._check_tensor("gripper", gripper, (batch,))
-        if demo_geometry is None:
-            if demo_points_world is None:
-                raise ValueError("give demo_points_world or demo_geometry")
-            demo_geometry = self.encode_demo_geometry(demo_points_world, demo_T_world_ee)
-        demo_positions, demo_features = demo_geometry
-        num_scene = self.config.encoder.num_nodes
-        self._check_tensor("demo scene positions", demo_positions, (batch, num_demos, demo_length, num_scene, 3))
-        feature_shape = (batch, num_demos, demo_length, num_scene, self.config.encoder.feature_dim)
-        self._check_tensor("demo scene features", demo_features, feature_shape)
-
         points_ee = transform_points(invert_rigid(T_world_ee), points_world)
         if scene_geometry is None:
             scene_geometry = self.encode_clouds(points_ee)
         scene_positions, scene_features = scene_geometry
-        self._check_tensor("scene positions", scene_positions, (batch, num_scene, 3))
-        self._check_tensor("scene features", scene_features, (batch, num_scene, self.config.encoder.feature_dim))
-        positions = torch.cat([demo_positions.flatten(1, 2), scene_positions[:, None]], dim=1)
-        features = torch.cat([demo_features.flatten(1, 2), scene_features[:, None]], dim=1)
-        states = torch.cat([demo_gripper.flatten(1, 2), gripper[:, None]], dim=1)
-        frames = num_demos * demo_length + 1
-        gripper_features = self._local_gripper_features(
-            positions.flatten(0, 1), features.flatten(0, 1), self.observation_gripper_features(states).flatten(0, 1)
-        ).view(batch, frames, self.num_keypoints, -1)
+        self._check_scene_nodes("live", scene_positions, scene_features, (batch,))
+        if demo_waypoint_features is None:
+            if demo_geometry is None:
+                if demo_points_world is None:
+                    raise ValueError("give demo_points_world, demo_geometry or demo_waypoint_features")
+                demo_geometry = self.encode_demo_geometry(demo_points_world, demo_T_world_ee)
+            self._check_scene_nodes("demo", *demo_geometry, (batch, num_demos, demo_length))
+            # σ on the demo and current graphs in one batch: (B, N·L + 1, K, H).
+            demo_positions, demo_features = demo_geometry
+            gripper_features = self._observation_gripper_features(
+                torch.cat([demo_positions.flatten(1, 2), scene_positions[:, None]], dim=1),
+                torch.cat([demo_features.flatten(1, 2), scene_features[:, None]], dim=1),
+                torch.cat([demo_gripper.flatten(1, 2), gripper[:, None]], dim=1),
+                leading=(batch, num_demos * demo_length + 1),
+            )
+        else:
+            hidden = (self.num_keypoints, self.config.hidden_dim)
+            self._check_tensor("demo waypoint features", demo_waypoint_features,
+                               (batch, num_demos, demo_length, *hidden))
+            current = self._observation_gripper_features(scene_positions, scene_features, gripper, leading=(batch,))
+            gripper_features = torch.cat([demo_waypoint_features.flatten(1, 2), current[:, None]], dim=1)
 
         graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, points_world.device)
         keypoints = self._keypoints(points_world)
