@@ -101,5 +101,6 @@ def test_data_benchmark_times_both_paths_on_the_same_rows(datasets, capsys):
     assert result["benchmark"] == "data" and result["frames"] == rows.num_frames
     assert len(result["runs_delta_timestamps"]) == len(result["runs_action_table"]) == 2
     assert min(result["runs_delta_timestamps"] + result["runs_action_table"]) > 0
+    # The ratio of the unrounded medians; the printed medians are rounded to 0.01 ms.
     assert result["speedup"] == pytest.approx(result["ms_per_row_delta_timestamps"] / result["ms_per_row_action_table"],
-                                              abs=0.02)
+                                              rel=0.05)
