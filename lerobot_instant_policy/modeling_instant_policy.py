@@ -13,7 +13,7 @@ dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :met
 waypoints are encoded once per task and reused at every control step.
 
 Actions: the network predicts ``T_EA``, the action poses in the current EE frame; the policy returns them as
-absolute world-frame EE targets ``(B, T, 8)`` in the layout of DESIGN §4 (xyz, quaternion xyzw with ``w ≥ 0``,
+absolute world-frame EE targets ``(B, T, 8)`` in the layout of docs/design.md §4 (xyz, quaternion xyzw with ``w ≥ 0``,
 gripper 1 open / 0 closed).
 """
 

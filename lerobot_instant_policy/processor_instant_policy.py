@@ -1,4 +1,4 @@
-"""Pre/post-processors of ``instant_policy``: LeRobot's default steps with IDENTITY normalisation (DESIGN §3).
+"""Pre/post-processors of ``instant_policy``: LeRobot's default steps with IDENTITY normalisation (docs/design.md §3).
 
 All normalisation happens inside the model (relative SE(3) actions in a normalised tangent space), so the point
 cloud, the EE state and the actions pass LeRobot's normaliser unchanged, in metres and the world frame. The steps

@@ -1,4 +1,4 @@
-"""The generator end to end: ``lerobot-ip-generate`` writes a LeRobotDataset that honours DESIGN §4 and §7."""
+"""The generator end to end: ``lerobot-ip-generate`` writes a LeRobotDataset that honours docs/design.md §4 and §7."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``lerobot-ip-record-demos``: task list, DESIGN §4 datasets of scripted demonstrations, clear errors."""
+"""``lerobot-ip-record-demos``: task list, docs/design.md §4 datasets of scripted demonstrations, clear errors."""
 
 from __future__ import annotations
 

@@ -4,7 +4,7 @@
     lerobot-ip-record-demos --task open_drawer --episodes 2 --out demos/open_drawer --repo-id local/open_drawer --seed 0
     lerobot-ip-record-demos --check --episodes 20 --json      # scripted vs do-nothing success table
 
-Recorded datasets follow DESIGN §4 exactly (``observation.pointcloud``, ``observation.state`` = the state
+Recorded datasets follow docs/design.md §4 exactly (``observation.pointcloud``, ``observation.state`` = the state
 before the action, ``action`` = the commanded EE target, ``task`` = the task name, 10 fps);
 ``--with-images`` adds an ``observation.images.scene`` RGB render for viewing. Only successful demonstrations
 are written: a failed seed is skipped and the next one tried (at most ``--max-attempts`` seeds per episode).

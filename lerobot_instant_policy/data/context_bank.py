@@ -1,4 +1,4 @@
-"""The context bank: every episode of a demonstration dataset reduced to its ``L`` waypoints (DESIGN §6).
+"""The context bank: every episode of a demonstration dataset reduced to its ``L`` waypoints (docs/design.md §6).
 
 During training, each frame of an episode gets as context ``N`` *other* episodes of the same ``task`` (the
 demonstrations of one pseudo-task). The bank is built once, from the dataset's metadata root or from
@@ -9,7 +9,7 @@ in the bank too (``encoded``).
 
 Gripper state of a waypoint: the state the demonstrator had commanded up to that frame (``action[t − 1]``'s
 gripper entry; ``state[0]``'s at the first frame). On a clean demonstration this is the observed state; it stays
-right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose (DESIGN §7),
+right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose (docs/design.md §7),
 which would otherwise count as gripper changes.
 
 Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus the cached encoder outputs; a bank

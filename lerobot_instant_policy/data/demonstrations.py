@@ -1,4 +1,4 @@
-"""Demonstrations of a task, read from a local LeRobotDataset in the data contract (DESIGN §4, §6).
+"""Demonstrations of a task, read from a local LeRobotDataset in the data contract (docs/design.md §4, §6).
 
 Policies that learn from a few demonstrations at test time (``demo_replay``, ``instant_policy``) name a dataset
 with ``demo_repo_id`` / ``demo_root`` / ``num_demos`` and use the episodes whose ``task`` is the env's task
@@ -169,7 +169,7 @@ def batch_task_names(tasks, batch_size: int, policy: str, only_task: str | None)
 
 
 def check_dataset_features(features: dict[str, dict], root: str | Path) -> None:
-    """Raise ``DemonstrationError`` naming every way ``features`` (LeRobot dataset metadata) break DESIGN §4."""
+    """Raise ``DemonstrationError`` naming every way ``features`` (LeRobot dataset metadata) break docs/design.md §4."""
     problems = []
     expected = {
         POINTCLOUD_KEY: ("(P, 3)", lambda shape: len(shape) == 2 and shape[1] == 3 and shape[0] > 0, None),
@@ -190,5 +190,5 @@ def check_dataset_features(features: dict[str, dict], root: str | Path) -> None:
             problems.append(f"{key!r} has names {feature.get('names')}, expected {names}")
     if problems:
         raise DemonstrationError(
-            f"the dataset at {root} is not in the demonstration format (DESIGN §4): " + "; ".join(problems)
+            f"the dataset at {root} is not in the demonstration format (docs/design.md §4): " + "; ".join(problems)
         )

@@ -1,4 +1,4 @@
-"""Reducing a demonstration to ``L`` waypoints (DESIGN §5, paper §3.1): the frames its context graph is built from.
+"""Reducing a demonstration to ``L`` waypoints (docs/design.md §5, paper §3.1): the frames its context graph is built from.
 
 Mandatory frames are the first and the last frame, both sides of every gripper change (the first frame that shows
 the new state and the last one before it, so a demonstration shows where the gripper acted) and every place the EE
@@ -16,7 +16,7 @@ import numpy as np
 
 from ..geometry.se3 import pose_distance
 
-# The path length unit: one pseudo-demonstration step (DESIGN §4).
+# The path length unit: one pseudo-demonstration step (docs/design.md §4).
 STEP_TRANSLATION = 0.01
 STEP_ROTATION = np.deg2rad(3.0)
 # Path length every frame adds on top of its motion, so that a segment where the EE holds still still gets filled

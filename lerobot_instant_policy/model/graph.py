@@ -1,4 +1,4 @@
-"""The heterogeneous graph of Instant Policy (paper §3.1, DESIGN §5): node and edge layout, edge attributes.
+"""The heterogeneous graph of Instant Policy (paper §3.1, docs/design.md §5): node and edge layout, edge attributes.
 
 A *local graph* is one time step seen from its own end-effector frame: ``M`` scene nodes (geometry-encoder
 centroids of the cloud expressed in that frame) and ``K = 6`` gripper nodes at fixed keypoints of the gripper.

@@ -1,7 +1,7 @@
 """``BulletTabletopEnv``: a gymnasium env of one ``bullet_tabletop`` task with a Panda driven by EE-pose actions.
 
 Actions ``(8,)``: the absolute EE target pose in the world frame (xyz m, quaternion xyzw) and the gripper
-command (≥ 0.5 open, < 0.5 close), DESIGN §4. A target outside the workspace box is clipped to it
+command (≥ 0.5 open, < 0.5 close), docs/design.md §4. A target outside the workspace box is clipped to it
 (``info["action_clipped"]``); a target further than ``max_translation_step`` / ``max_rotation_step_deg`` from the
 current EE pose is moved toward it by that much (``info["step_clipped"]``); the arm follows through inverse
 kinematics over ``physics_substeps`` physics steps of 1/240 s.
@@ -252,7 +252,7 @@ class BulletTabletopEnv(gym.Env):
         return self.robot.joint_positions().astype(np.float32)
 
     def agent_pos(self) -> np.ndarray:
-        """The ``(8,)`` float32 state of DESIGN §4 (EE pose in the world frame, gripper open flag)."""
+        """The ``(8,)`` float32 state of docs/design.md §4 (EE pose in the world frame, gripper open flag)."""
         return vectors_from_poses(self.robot.ee_pose(), self.robot.gripper_open).astype(np.float32)
 
     # --- internals -------------------------------------------------------------------------------------
