@@ -1,4 +1,5 @@
-"""The data contract (docs/design.md §4): the LeRobot feature keys, their shapes and names, and the one codec of the 8-vector.
+"""The data contract (docs/design.md §4): the LeRobot feature keys, their shapes and names, and the one codec of the
+8-vector.
 
 Every frame has ``observation.pointcloud (P, 3)`` (segmented object points, world frame, metres),
 ``observation.state (8,)`` (the EE pose in the world frame and the gripper state) and ``action (8,)`` (the commanded

@@ -2,8 +2,8 @@
 
 Training (``lerobot-train``): every batch row is a frame of an episode with ``observation.pointcloud (P, 3)`` and
 ``observation.state (8,)`` (world frame), its ``episode_index`` and ``index``; the ``horizon`` actions that follow it
-come from the dataset's action table (:mod:`.data.action_chunks`), read once. The policy draws one N in ``min_demos … max_demos`` per batch (so every row has the same graph)
-and, per row, N other episodes of the row's task from a :class:`ContextBank` it builds on the first ``forward`` from
+come from the dataset's action table (:mod:`.data.action_chunks`), read once. The policy draws one N in
+``min_demos … max_demos`` per batch (so every row has the same graph) and, per row, N other episodes of the row's task from a :class:`ContextBank` it builds on the first ``forward`` from
 the training dataset's ``dataset_meta``. The frozen encoder's output for every frame of that dataset is cached
 beside it (:mod:`.frame_encodings`), so a training step reads the scene nodes of its frames and of their context
 waypoints. The bank and the cache are plain attributes, never part of ``model.safetensors``.

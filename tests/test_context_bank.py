@@ -1,5 +1,5 @@
-"""The context bank (docs/design.md §6): each episode's L waypoints read once from a demonstration dataset, context sampling
-among the other episodes of a task, the frozen-encoder cache, and clear errors for datasets it cannot use."""
+"""The context bank (docs/design.md §6): each episode's L waypoints read once from a demonstration dataset, context
+sampling among the other episodes of a task, the frozen-encoder cache, and clear errors for datasets it cannot use."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ from lerobot_instant_policy.contract import (
 
 
 def _random_vectors(batch: tuple[int, ...], seed: int = 0) -> np.ndarray:
-    """``(*batch, 8)`` float64 vectors with random positions, unit quaternions (either sign of ``w``) and 0/1 grippers."""
+    """``(*batch, 8)`` float64 vectors: random positions, unit quaternions (either sign of ``w``), 0/1 grippers."""
     rng = np.random.default_rng(seed)
     count = int(np.prod(batch))
     quaternions = Rotation.random(count, random_state=seed).as_quat() * rng.choice([-1.0, 1.0], (count, 1))

@@ -1,5 +1,5 @@
-"""Waypoint extraction (docs/design.md §5): first and last frame, both sides of every gripper change, stops, then an even
-fill along the path; never more than L frames, and a clear error for input it cannot use."""
+"""Waypoint extraction (docs/design.md §5): first and last frame, both sides of every gripper change, stops, then an
+even fill along the path; never more than L frames, and a clear error for input it cannot use."""
 
 from __future__ import annotations
 

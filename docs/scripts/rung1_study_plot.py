@@ -30,7 +30,8 @@ for argument in arguments:
     key, path = argument.split("=", 1)
     series[current][int(key)] = point(path)
 figure, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-for axis, (name, label) in zip(axes, (("steps", "training steps (batch 8)"), ("tasks", "training tasks (2,200 steps)"))):
+labels = (("steps", "training steps (batch 8)"), ("tasks", "training tasks (2,200 steps)"))
+for axis, (name, label) in zip(axes, labels):
     xs = sorted(series[name])
     axis.plot(xs, [series[name][x]["own_over_hold"] for x in xs], "o-", label="translation error / hold-still")
     axis.plot(xs, [series[name][x]["context_gain"] for x in xs], "s-", label="context gain (swap / own)")

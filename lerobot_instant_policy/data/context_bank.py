@@ -9,8 +9,8 @@ in the bank too (``encoded``).
 
 Gripper state of a waypoint: the state the demonstrator had commanded up to that frame (``action[t − 1]``'s
 gripper entry; ``state[0]``'s at the first frame). On a clean demonstration this is the observed state; it stays
-right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose (docs/design.md §7),
-which would otherwise count as gripper changes.
+right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose
+(docs/design.md §7), which would otherwise count as gripper changes.
 
 Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus the cached encoder outputs; a bank
 read with ``read_points=False`` (training from frame encodings) holds only the poses, gripper states and indices.

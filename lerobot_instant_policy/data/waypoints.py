@@ -1,4 +1,5 @@
-"""Reducing a demonstration to ``L`` waypoints (docs/design.md §5, paper §3.1): the frames its context graph is built from.
+"""Reducing a demonstration to ``L`` waypoints (docs/design.md §5, paper §3.1): the frames its context graph is built
+from.
 
 Mandatory frames are the first and the last frame, both sides of every gripper change (the first frame that shows
 the new state and the last one before it, so a demonstration shows where the gripper acted) and every place the EE
