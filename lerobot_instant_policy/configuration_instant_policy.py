@@ -3,6 +3,11 @@
 One flag picks the network sizes: ``--policy.preset=small`` (CPU) or ``--policy.preset=paper`` (hidden 1024, 16 heads,
 ≈118M parameters, the paper's model). A size field left at ``None`` takes the preset's value; a size given explicitly
 wins over the preset. After ``__post_init__`` every size is set, so a saved ``config.json`` is complete on its own.
+
+This one dataclass configures everything: LeRobot's training loop, the policy, and, handed over as it is, the network
+(:class:`~.model.instant_policy_network.InstantPolicyNetwork`), as LeRobot's own policies do. Building it reads no
+file: the encoder weights are loaded in an explicit step of the policy
+(:meth:`~.modeling_instant_policy.InstantPolicyPolicy.load_encoder_weights`).
 """
 
 from __future__ import annotations
@@ -16,6 +21,9 @@ from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
 
 from .contract import POINTCLOUD_KEY
 from .geometry.gripper import GRIPPER_KEYPOINTS
+from .model.action_diffusion import LOSS_WEIGHTINGS
+from .model.geometry_encoder import GeometryEncoderConfig, encoder_preset
+from .model.instant_policy_network import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS
 from .policy_features import (
     check_policy_features,
     contract_input_features,
@@ -26,9 +34,7 @@ from .policy_features import (
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
 
-# N and L the graph is built for; the training range of N (min_demos…max_demos) must lie inside too.
-SUPPORTED_DEMOS = (1, 8)
-SUPPORTED_WAYPOINTS = (2, 32)
+# T and K the network is built for (N and L: the network's SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS).
 SUPPORTED_HORIZON = (1, 32)
 SUPPORTED_INFERENCE_STEPS = (1, 8)
 
@@ -77,12 +83,16 @@ class InstantPolicyConfig(PreTrainedConfig):
         inference_steps: K, DDIM denoising steps at inference.
         diffusion_train_steps: steps of the training noise schedule (squared cosine).
         num_scene_nodes: M, scene nodes per local graph; the geometry encoder's number of output centroids.
-        gripper_keypoints: the gripper nodes' positions in the EE frame (m), one ``(x, y, z)`` each; at least three
-            not on one line, since each denoising step fits an SE(3) update to them.
+        gripper_keypoints: the G gripper nodes' positions in the EE frame (m), one ``(x, y, z)`` each; at least
+            three not on one line, since each denoising step fits an SE(3) update to them.
+        max_translation, max_rotation_deg: the largest translation (m) and rotation (degrees) of one action step
+            relative to the previous, the scale that normalises the flow the network predicts (paper §3.2).
 
     Network (``None``: the preset's value): hidden_dim, num_heads (``hidden_dim`` must divide by it), and the
     number of graph-transformer layers of σ (``local_layers``, the local graphs), φ (``context_layers``,
-    demonstrations → current) and ψ (``action_layers``, current → actions).
+    demonstrations → current) and ψ (``action_layers``, current → actions); ``mlp_ratio``, the width of each
+    layer's feed-forward block over ``hidden_dim``; ``num_frequencies``, the sinusoidal frequencies of the edge
+    and timestep encodings.
 
     Geometry encoder (frozen): ``encoder_preset`` (``None``: the preset's) names its architecture; its weights come
     from ``encoder_weights`` (a ``.safetensors`` written by ``lerobot-ip-pretrain-encoder`` with its ``.json``
@@ -126,12 +136,16 @@ class InstantPolicyConfig(PreTrainedConfig):
     diffusion_train_steps: int = 100
     num_scene_nodes: int = 16
     gripper_keypoints: list[list[float]] = field(default_factory=lambda: [list(p) for p in DEFAULT_GRIPPER_KEYPOINTS])
+    max_translation: float = 0.01
+    max_rotation_deg: float = 3.0
 
     hidden_dim: int | None = None
     num_heads: int | None = None
     local_layers: int | None = None
     context_layers: int | None = None
     action_layers: int | None = None
+    mlp_ratio: int = 4
+    num_frequencies: int = 10
 
     encoder_preset: str | None = None
     encoder_weights: str | None = None
@@ -195,7 +209,8 @@ class InstantPolicyConfig(PreTrainedConfig):
             raise ValueError(
                 f"instant_policy reads the current observation only: n_obs_steps must be 1, got {self.n_obs_steps}"
             )
-        for name in ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers"):
+        for name in ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers", "mlp_ratio",
+                     "num_frequencies"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.hidden_dim % self.num_heads:
@@ -210,6 +225,15 @@ class InstantPolicyConfig(PreTrainedConfig):
                 "gripper_keypoints need at least 3 points not on one line (an SE(3) update is fitted to them), got "
                 f"{self.gripper_keypoints}"
             )
+        if self.max_translation <= 0 or self.max_rotation_deg <= 0:
+            raise ValueError(
+                f"max_translation and max_rotation_deg must be positive, got {self.max_translation}, "
+                f"{self.max_rotation_deg}"
+            )
+        if self.flow_loss_weighting not in LOSS_WEIGHTINGS:
+            raise ValueError(
+                f"flow_loss_weighting must be one of {list(LOSS_WEIGHTINGS)}, got {self.flow_loss_weighting!r}"
+            )
         if self.gripper_loss_weight < 0:
             raise ValueError(f"gripper_loss_weight must be non-negative, got {self.gripper_loss_weight}")
         if not 0.0 <= self.gripper_flip_probability <= 1.0:
@@ -222,28 +246,18 @@ class InstantPolicyConfig(PreTrainedConfig):
         self._validate_encoder()
 
     def _validate_encoder(self) -> None:
-        from .model.geometry_encoder import encoder_preset
-        from .model.occupancy import read_sidecar
-
-        architecture = encoder_preset(self.encoder_preset)
-        if architecture.num_nodes != self.num_scene_nodes:
+        if self.encoder_config.num_nodes != self.num_scene_nodes:
             raise ValueError(
                 f"num_scene_nodes (M={self.num_scene_nodes}) must equal the {self.encoder_preset!r} geometry encoder's "
-                f"{architecture.num_nodes} output centroids"
+                f"{self.encoder_config.num_nodes} output centroids"
             )
         if self.encoder_weights is not None and not self.encoder_weights.endswith(".safetensors"):
             raise ValueError(f"encoder_weights must name a .safetensors file, got {self.encoder_weights!r}")
-        path = self.encoder_weights_path()
-        if self.pretrained_encoder and path.is_file():
-            from .model.geometry_encoder import GeometryEncoderConfig
 
-            found = GeometryEncoderConfig.from_dict(read_sidecar(path)["encoder"])
-            if found != architecture:
-                raise ValueError(
-                    f"encoder weights {path} were trained for encoder config {found.to_dict()}, which is not the "
-                    f"{self.encoder_preset!r} encoder_preset {architecture.to_dict()}; set --policy.encoder_preset "
-                    "to match them or pass other weights"
-                )
+    @property
+    def encoder_config(self) -> GeometryEncoderConfig:
+        """The frozen geometry encoder's architecture, ``encoder_preset``'s."""
+        return encoder_preset(self.encoder_preset)
 
     def encoder_weights_path(self) -> Path:
         """The encoder weights file: ``encoder_weights``, or the shipped weights of ``encoder_preset``."""
@@ -265,6 +279,11 @@ class InstantPolicyConfig(PreTrainedConfig):
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)``, writes ``action (8,)``."""
         check_policy_features("instant_policy", self.input_features, self.output_features)
+        if self.num_points < self.encoder_config.num_centroids[0]:
+            raise ValueError(
+                f"clouds of {self.num_points} points are fewer than the {self.encoder_preset!r} geometry encoder's "
+                f"{self.encoder_config.num_centroids[0]} first-level centroids"
+            )
 
     @property
     def num_points(self) -> int:

@@ -2,15 +2,18 @@
 
 Training (``lerobot-train``): every batch row is a frame of an episode with ``observation.pointcloud (P, 3)`` and
 ``observation.state (8,)`` (world frame), its ``episode_index`` and ``index``; the ``horizon`` actions that follow it
-come from the dataset's action table (:mod:`.data.action_chunks`), read once. The policy draws one N in
-``min_demos … max_demos`` per batch (so every row has the same graph) and, per row, N other episodes of the row's task from a :class:`ContextBank` it builds on the first ``forward`` from
-the training dataset's ``dataset_meta``. The frozen encoder's output for every frame of that dataset is cached
-beside it (:mod:`.frame_encodings`), so a training step reads the scene nodes of its frames and of their context
-waypoints. The bank and the cache are plain attributes, never part of ``model.safetensors``.
+come from the dataset's action table (:mod:`.data.action_chunks`). The policy draws one N in ``min_demos …
+max_demos`` per batch (so every row has the same graph) and, per row, N other episodes of the row's task from a
+:class:`ContextBank` of the training dataset. The bank and the action table are read when the policy is built with
+the training dataset's ``dataset_meta`` (as ``lerobot-train`` does). The frozen encoder's output for every frame of
+that dataset is cached beside it (:mod:`.frame_encodings`; loaded, or built once, at the first ``forward``, on the
+policy's device), so a training step reads the scene nodes of its frames and of their context waypoints. None of
+this is part of ``model.safetensors``.
 
 Evaluation (``lerobot-eval``) and deployment: the demonstrations of each batch row's ``task`` come from the
-dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :meth:`set_demonstrations`. Their
-waypoints are encoded once per task and reused at every control step.
+dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :meth:`set_demonstrations`. They take
+the training context's path (a bank of their waypoints → :class:`ContextEncoder` → :class:`DemoTensors`) once per
+task, and the result is reused at every control step.
 
 Actions: the network predicts ``T_EA``, the action poses in the current EE frame; the policy returns them as
 absolute world-frame EE targets ``(B, T, 8)`` in the layout of docs/design.md §4 (xyz, quaternion xyzw with ``w ≥ 0``,
@@ -21,7 +24,6 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,24 +32,18 @@ import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
-from .configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, InstantPolicyConfig
+from .configuration_instant_policy import InstantPolicyConfig
+from .context_encoder import ContextEncoder
 from .contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch, vectors_from_poses_torch
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
 from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
 from .geometry.rigid_torch import compose, invert_rigid
-from .model.geometry_encoder import encoder_preset
-from .model.instant_policy_network import InstantPolicyNetwork, InstantPolicyNetworkConfig
+from .model.instant_policy_network import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, DemoTensors, InstantPolicyNetwork
 from .model.occupancy import load_geometry_encoder
 
 logger = logging.getLogger(__name__)
-
-# True while ``from_pretrained`` builds a policy: its encoder then comes from the checkpoint, not the weights file.
-_LOADING_CHECKPOINT: ContextVar[bool] = ContextVar("instant_policy_loading_checkpoint", default=False)
-
-# Episodes per frozen-encoder call when the training bank fills its cache (L clouds each).
-_ENCODE_CHUNK_EPISODES = 4
 
 
 class CheckpointMismatchError(ValueError):
@@ -55,52 +51,18 @@ class CheckpointMismatchError(ValueError):
 
 
 @dataclass
-class DemoContext:
-    """The demonstrations of one task, ready for the network (a leading batch axis of 1, expanded per batch):
-    ``T_world_ee (1, N, L, 4, 4)``, ``gripper_open (1, N, L)`` and the frozen encoder's scene nodes of every waypoint
-    in its EE frame, ``scene_positions (1, N, L, M, 3)`` and ``scene_features (1, N, L, M, D)``, on the policy's
-    device. ``waypoint_features (1, N, L, K, H)`` is σ's output on the waypoints' local graphs, valid for the weights
-    identified by ``weights_version`` (see :meth:`InstantPolicyPolicy.demo_waypoint_features`)."""
+class TaskContext:
+    """One task's context at inference: its demonstrations reduced to ``num_waypoints`` (L) waypoints, handed in with
+    :meth:`InstantPolicyPolicy.set_demonstrations` (``handed_in``) or read from ``demo_repo_id``. Computed on first
+    use and kept until the weights change: ``demos``, their :class:`DemoTensors` with a batch of one on the
+    policy's device, and ``waypoint_features (1, N, L, G, H)``, σ's output on their local graphs, valid for the
+    weights identified by ``weights_version``."""
 
-    T_world_ee: Tensor
-    gripper_open: Tensor
-    scene_positions: Tensor
-    scene_features: Tensor
+    num_waypoints: int
+    handed_in: bool
+    demos: DemoTensors | None = None
     waypoint_features: Tensor | None = None
     weights_version: tuple | None = None
-
-    @property
-    def num_demos(self) -> int:
-        return self.T_world_ee.shape[1]
-
-    @property
-    def num_waypoints(self) -> int:
-        return self.T_world_ee.shape[2]
-
-
-def network_config(config: InstantPolicyConfig) -> InstantPolicyNetworkConfig:
-    """The network that ``config`` describes (field names differ: ``horizon`` → ``prediction_horizon``, …)."""
-    return InstantPolicyNetworkConfig(
-        hidden_dim=config.hidden_dim,
-        num_heads=config.num_heads,
-        num_layers=config.local_layers,
-        local_layers=config.local_layers,
-        context_layers=config.context_layers,
-        action_layers=config.action_layers,
-        encoder=encoder_preset(config.encoder_preset),
-        num_points=config.num_points,
-        prediction_horizon=config.horizon,
-        num_train_timesteps=config.diffusion_train_steps,
-        num_inference_steps=config.inference_steps,
-        gripper_keypoints=tuple(tuple(point) for point in config.gripper_keypoints),
-        reencode_action_clouds=config.reencode_action_clouds,
-        gripper_loss_weight=config.gripper_loss_weight,
-        dense_attention=config.dense_attention,
-        action_scene_graph=config.action_scene_graph,
-        flow_loss_weighting=config.flow_loss_weighting,
-        max_num_demos=SUPPORTED_DEMOS[1],
-        max_demo_length=SUPPORTED_WAYPOINTS[1],
-    )
 
 
 class InstantPolicyPolicy(PreTrainedPolicy):
@@ -109,25 +71,39 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     config_class = InstantPolicyConfig
     name = "instant_policy"
 
-    def __init__(self, config: InstantPolicyConfig, dataset_stats=None, dataset_meta=None, **kwargs):
+    def __init__(self, config: InstantPolicyConfig, dataset_stats=None, dataset_meta=None,
+                 load_encoder_weights: bool = True, **kwargs):
+        """Build the policy; with ``dataset_meta`` (a training dataset's ``LeRobotDatasetMetadata``) read that
+        dataset's context bank and action table. ``load_encoder_weights``: load the frozen encoder's pretrained
+        weights (:meth:`load_encoder_weights`) when ``config.pretrained_encoder``; ``from_pretrained`` passes False,
+        since a checkpoint carries its encoder."""
         super().__init__(config)
         config.validate_features()
         self.config: InstantPolicyConfig = config
-        self.network = InstantPolicyNetwork(network_config(config))
-        if config.pretrained_encoder and not _LOADING_CHECKPOINT.get():
-            encoder = load_geometry_encoder(config.require_encoder_weights(), expected=self.network.config.encoder)
-            self.network.geometry_encoder.load_state_dict(encoder.state_dict())
+        self.network = InstantPolicyNetwork(config)
         self._dataset_meta = dataset_meta
         self._training_bank: ContextBank | None = None
-        self._frame_encodings: FrameEncodings | None = None
+        self._training_frame_encodings: FrameEncodings | None = None
+        self._context_encoder: ContextEncoder | None = None
         self._action_chunks: ActionChunks | None = None
-        self._demo_contexts: dict[str, DemoContext] = {}
-        self._demo_waypoints: dict[str, int] = {}  # L of the demonstrations handed in with set_demonstrations
+        self._task_contexts: dict[str, TaskContext] = {}
+        if config.pretrained_encoder and load_encoder_weights:
+            self.load_encoder_weights(config.require_encoder_weights())
+        if dataset_meta is not None:
+            self._training_bank = self._read_training_bank(dataset_meta)
+            self._action_chunks = ActionChunks.from_dataset(dataset_meta.repo_id, dataset_meta.root)
         self._queue: deque[Tensor] = deque()
         self._last_gripper: Tensor | None = None
         self._demonstrations = DemonstrationSource(
             "instant_policy", config.demo_repo_id, config.demo_root, config.num_demos
         )
+
+    def load_encoder_weights(self, path: str | Path) -> None:
+        """Load the frozen geometry encoder's weights from a ``lerobot-ip-pretrain-encoder`` file; a
+        ``ValueError`` when they were trained for another architecture than ``config.encoder_preset``'s."""
+        encoder = load_geometry_encoder(path, expected=self.config.encoder_config)
+        self.network.geometry_encoder.load_state_dict(encoder.state_dict())
+        self.clear_context_caches()
 
     # ------------------------------------------------------------------ LeRobot interface
     def get_optim_params(self) -> list[Tensor]:
@@ -160,31 +136,17 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         flip = torch.rand(batch_size, device=state.device) < self.config.gripper_flip_probability
         gripper = torch.where(flip, 1.0 - gripper, gripper)
 
-        bank = self.training_bank()
+        encoder = self.training_context_encoder()
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,)).item()))
         episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
         # N is capped at the fewest other episodes of a row's task: a demonstration never repeats in one context.
-        available = int(bank.other_episode_counts(episodes).min())
+        available = int(encoder.bank.other_episode_counts(episodes).min())
         num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
-        context_episodes = np.stack([bank.sample_context(int(episode), num_demos, rng) for episode in episodes])
+        context_episodes = np.stack([encoder.bank.sample_context(int(episode), num_demos, rng) for episode in episodes])
         device = state.device
-        encodings = self.training_frame_encodings() if bank.has_dataset_indices else None
-        if encodings is not None:
-            demo_geometry = encodings.lookup(bank.dataset_indices(context_episodes), device)
-            scene_geometry = encodings.lookup(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
-        else:
-            demo_geometry = bank.encoded(context_episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
-            scene_geometry = None
-        arrays = bank.gather(context_episodes)
+        scene_geometry = encoder.frames(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
         context = self.network.encode_context(
-            None,
-            torch.from_numpy(arrays.T_world_ee).to(device),
-            torch.from_numpy(arrays.gripper_open).to(device),
-            points_world,
-            T_world_ee,
-            gripper,
-            demo_geometry=demo_geometry,
-            scene_geometry=scene_geometry,
+            encoder.demos(context_episodes, device), points_world, T_world_ee, gripper, scene_geometry=scene_geometry
         )
         losses = self.network.training_loss(context, T_ee_actions, action_gripper)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
@@ -213,32 +175,33 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return points_world, state, T_world_ee, T_ee_actions, action_gripper.clamp(0.0, 1.0)
 
     @torch.no_grad()
-    def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None, **kwargs) -> Tensor:
+    def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None,
+                             num_inference_steps: int | None = None, **kwargs) -> Tensor:
         """``(B, T, 8)`` absolute world-frame EE targets (xyz, quaternion xyzw with ``w ≥ 0``, gripper 1/0).
 
         Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), with
-        ``config.inference_steps`` (K, read at every call) DDIM steps; ``generator`` seeds the DDIM noise.
+        ``num_inference_steps`` DDIM steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
         T_world_ee, gripper_open = poses_from_vectors_torch(state)
         gripper = (gripper_open > 0.5).to(state.dtype)
+        steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
         for task in dict.fromkeys(tasks):
             rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
-            demos = self.demo_context(task)
+            task_context = self.task_context(task)
             count = len(rows)
+            waypoint_features = task_context.waypoint_features
             context = self.network.encode_context(
-                None,
-                demos.T_world_ee.expand(count, -1, -1, -1, -1),
-                demos.gripper_open.expand(count, -1, -1),
+                task_context.demos.expand(count),
                 points_world[rows],
                 T_world_ee[rows],
                 gripper[rows],
-                demo_waypoint_features=self.demo_waypoint_features(demos).expand(count, -1, -1, -1, -1),
+                demo_waypoint_features=waypoint_features.expand(count, *waypoint_features.shape[1:]),
             )
             T_ee_actions, action_gripper = self.network.sample_actions(
-                context, num_inference_steps=self.config.inference_steps, generator=generator
+                context, num_inference_steps=steps, generator=generator
             )
             chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk
@@ -270,12 +233,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------------ checkpoints
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> InstantPolicyPolicy:
-        """LeRobot's ``from_pretrained``, with the encoder taken from the checkpoint and strict key checking."""
-        token = _LOADING_CHECKPOINT.set(True)
-        try:
-            return super().from_pretrained(pretrained_name_or_path, **kwargs)
-        finally:
-            _LOADING_CHECKPOINT.reset(token)
+        """LeRobot's ``from_pretrained``, with strict key checking; the frozen encoder comes from the checkpoint's
+        tensors, so no encoder weights file is read."""
+        return super().from_pretrained(pretrained_name_or_path, load_encoder_weights=False, **kwargs)
 
     @classmethod
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
@@ -299,58 +259,61 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return model
 
     def clear_context_caches(self) -> None:
-        """Forget encoder outputs computed with the previous weights (training bank cache, demo contexts)."""
-        if self._training_bank is not None:
-            self._training_bank.clear_encoded()
-        self._frame_encodings = None
-        self._demo_contexts.clear()
+        """Forget what was computed with the previous weights: the training context's encoder outputs and frame
+        encodings, and every task's encoded demonstrations (their waypoints and N, L are kept)."""
+        self._context_encoder = None
+        self._training_frame_encodings = None
+        for task_context in self._task_contexts.values():
+            task_context.demos = task_context.waypoint_features = task_context.weights_version = None
 
-    # ------------------------------------------------------------------ context
-    def training_bank(self) -> ContextBank:
-        """The bank of the training dataset's waypoints, built from ``dataset_meta`` on first use."""
-        if self._training_bank is None:
-            if self._dataset_meta is None:
+    # ------------------------------------------------------------------ training context
+    def _read_training_bank(self, dataset_meta) -> ContextBank:
+        shape = tuple(dataset_meta.features.get(POINTCLOUD_KEY, {}).get("shape", ()))
+        if shape[:1] != (self.config.num_points,):
+            raise ValueError(
+                f"point clouds of the wrong size: the training dataset's {POINTCLOUD_KEY!r} has shape {shape}, "
+                f"the policy expects ({self.config.num_points}, 3)"
+            )
+        # With frame encodings the bank needs no clouds: their scene nodes come from the cache.
+        read_points = not self.config.cache_frame_encodings
+        return ContextBank.from_dataset_meta(dataset_meta, self.config.num_waypoints, read_points=read_points)
+
+    def training_context_encoder(self) -> ContextEncoder:
+        """The training context: the training bank's waypoints with the frame encodings of its dataset (loaded from
+        beside the dataset, or built there on first use, with ``cache_frame_encodings``)."""
+        if self._context_encoder is None:
+            if self._training_bank is None:
                 raise RuntimeError(
                     "instant_policy training draws context demonstrations from the training dataset: build the policy "
                     "with dataset_meta (lerobot-train does) or call set_training_bank()"
                 )
-            shape = tuple(self._dataset_meta.features.get(POINTCLOUD_KEY, {}).get("shape", ()))
-            if shape[:1] != (self.config.num_points,):
-                raise ValueError(
-                    f"point clouds of the wrong size: the training dataset's {POINTCLOUD_KEY!r} has shape {shape}, "
-                    f"the policy expects ({self.config.num_points}, 3)"
-                )
-            # With frame encodings the bank needs no clouds: their scene nodes come from the cache.
-            read_points = self.training_frame_encodings() is None
-            bank = ContextBank.from_dataset_meta(self._dataset_meta, self.config.num_waypoints, read_points=read_points)
-            self.set_training_bank(bank)
-        return self._training_bank
+            encodings = self._training_frame_encodings
+            if encodings is None and self.config.cache_frame_encodings and self._dataset_meta is not None:
+                encodings = self._training_frame_encodings = self.frame_encodings(self._dataset_meta)
+            self._context_encoder = ContextEncoder(self.network, self._training_bank, encodings)
+        return self._context_encoder
+
+    def frame_encodings(self, dataset_meta) -> FrameEncodings:
+        """The frozen encoder's output for every frame of the dataset ``dataset_meta`` describes (its local ``root``),
+        for the current encoder weights: loaded from beside the dataset, or built there once (minutes on a CPU)."""
+        root, repo_id = dataset_meta.root, dataset_meta.repo_id
+        fingerprint = encoder_fingerprint(self.network.geometry_encoder, self.config.encoder_config.to_dict())
+        encodings = load_frame_encodings(root, fingerprint)
+        if encodings is None:
+            logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
+            encodings = build_frame_encodings(
+                open_demo_dataset(repo_id, root), fingerprint, self._encode_frames, self._device()
+            )
+        return encodings
 
     def training_action_chunks(self) -> ActionChunks:
-        """Every frame's action of the training dataset (``dataset_meta``), read on first use."""
+        """Every frame's action of the training dataset (read from ``dataset_meta`` when the policy was built)."""
         if self._action_chunks is None:
-            if self._dataset_meta is None:
-                raise RuntimeError(
-                    f"instant_policy training needs {ACTION_KEY!r} chunks of shape (B, horizon, 8): give them in the "
-                    "batch, or build the policy with dataset_meta (lerobot-train does) to read them by 'index'"
-                )
-            self._action_chunks = ActionChunks.from_dataset(self._dataset_meta.repo_id, self._dataset_meta.root)
+            raise RuntimeError(
+                f"instant_policy training needs {ACTION_KEY!r} chunks of shape (B, horizon, 8): give them in the "
+                "batch, or build the policy with dataset_meta (lerobot-train does) to read them by 'index'"
+            )
         return self._action_chunks
-
-    def training_frame_encodings(self) -> FrameEncodings | None:
-        """The frozen encoder's output for every frame of the training dataset (``frame_encodings``), loaded from
-        beside the dataset or built there on first use; None without ``cache_frame_encodings`` or ``dataset_meta``."""
-        if self._frame_encodings is None and self.config.cache_frame_encodings and self._dataset_meta is not None:
-            root, repo_id = self._dataset_meta.root, self._dataset_meta.repo_id
-            fingerprint = encoder_fingerprint(self.network.geometry_encoder, self.network.config.encoder.to_dict())
-            encodings = load_frame_encodings(root, fingerprint)
-            if encodings is None:
-                logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
-                encodings = build_frame_encodings(
-                    open_demo_dataset(repo_id, root), fingerprint, self._encode_frames, self._device()
-                )
-            self._frame_encodings = encodings
-        return self._frame_encodings
 
     def set_training_bank(self, bank: ContextBank, frame_encodings: FrameEncodings | None = None) -> None:
         """Use ``bank`` for the training context (its waypoint count must be ``num_waypoints``), and
@@ -362,42 +325,43 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 f"point clouds of the wrong size: the training dataset has {bank.num_points} points per cloud, the "
                 f"policy expects {self.config.num_points}"
             )
-        if frame_encodings is not None and not bank.has_dataset_indices:
-            raise ValueError("frame_encodings need a bank read from their dataset (ContextBank.from_dataset)")
-        self._training_bank = bank
-        if frame_encodings is not None:
-            self._frame_encodings = frame_encodings
+        self._context_encoder = ContextEncoder(self.network, bank, frame_encodings)
+        self._training_bank, self._training_frame_encodings = bank, frame_encodings
 
+    # ------------------------------------------------------------------ inference context
     def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None:
         """Use ``demonstrations`` (N of them, all of one task) as that task's context, each reduced to
         ``num_waypoints`` (L; ``None``: the config's). Any N in 1…8 and L in 2…32 work without retraining."""
+        self._check_demonstrations(demonstrations, num_waypoints or self.config.num_waypoints)
         task = self._demonstrations.hand_in(demonstrations)
-        self._demo_waypoints[task] = num_waypoints or self.config.num_waypoints
-        self._demo_contexts[task] = self._make_demo_context(demonstrations, self._demo_waypoints[task])
+        self._task_contexts[task] = TaskContext(num_waypoints or self.config.num_waypoints, handed_in=True)
+        self.task_context(task)
         self.reset()
 
-    def demo_context(self, task: str) -> DemoContext:
-        """The encoded demonstrations of ``task``: handed in, or read from ``demo_repo_id`` on first use."""
-        if task not in self._demo_contexts:
+    def task_context(self, task: str) -> TaskContext:
+        """The context of ``task`` with its tensors for the current weights: its demonstrations (handed in, or read
+        from ``demo_repo_id`` on first use) through the training context's path, :class:`ContextEncoder`, and σ on
+        their waypoints. Both depend on the weights and not on the live observation, so they are computed once per
+        task and reused at every control step until the weights change (an optimizer step or a checkpoint load
+        changes the parameters' versions)."""
+        task_context = self._task_contexts.setdefault(task, TaskContext(self.config.num_waypoints, handed_in=False))
+        if task_context.demos is not None and task_context.demos.T_world_ee.device != self._device():
+            task_context.demos = None  # the policy moved to another device since
+        if task_context.demos is None:
             demonstrations = self._demonstrations.get(task)
-            num_waypoints = self._demo_waypoints.get(task, self.config.num_waypoints)
-            self._demo_contexts[task] = self._make_demo_context(demonstrations, num_waypoints)
-            logger.info("instant_policy: %d demonstrations of task %r encoded", len(demonstrations), task)
-        return self._demo_contexts[task]
-
-    def demo_waypoint_features(self, demos: DemoContext) -> Tensor:
-        """σ on a task's demonstration waypoints, ``(1, N, L, K, H)``: it depends on the weights but not on the live
-        observation, so it is computed once per task and reused at every control step until the weights change (an
-        optimizer step or a checkpoint load changes their version)."""
-        version = tuple((p.device, p.dtype, p._version) for p in self.network.parameters())
-        if demos.waypoint_features is None or demos.weights_version != version:
-            demos.waypoint_features = self.network.encode_demo_waypoints(
-                (demos.scene_positions, demos.scene_features), demos.gripper_open
+            self._check_demonstrations(demonstrations, task_context.num_waypoints)
+            bank = ContextBank.from_demonstrations(demonstrations, task_context.num_waypoints)
+            task_context.demos = ContextEncoder(self.network, bank).demos(
+                np.arange(len(demonstrations))[None], self._device()
             )
-            demos.weights_version = version
-        return demos.waypoint_features
+            logger.info("instant_policy: %d demonstrations of task %r encoded", len(demonstrations), task)
+        version = tuple((p.device, p.dtype, p._version) for p in self.network.parameters())
+        if task_context.waypoint_features is None or task_context.weights_version != version:
+            task_context.waypoint_features = self.network.encode_demo_waypoints(task_context.demos)
+            task_context.weights_version = version
+        return task_context
 
-    def _make_demo_context(self, demonstrations: list[Demonstration], num_waypoints: int) -> DemoContext:
+    def _check_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int) -> None:
         low, high = SUPPORTED_DEMOS
         if not low <= len(demonstrations) <= high:
             raise ValueError(f"number of demonstrations N={len(demonstrations)} is outside the supported {low}…{high}")
@@ -410,24 +374,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                     f"point clouds of the wrong size: demonstration {index} of {demo.task!r} has "
                     f"{demo.points_world.shape[1]} points per cloud, the policy expects {self.config.num_points}"
                 )
-        bank = ContextBank.from_demonstrations(demonstrations, num_waypoints)
-        episodes = np.arange(len(demonstrations))
-        positions, features = bank.encoded(episodes, self._encode_clouds, chunk_size=_ENCODE_CHUNK_EPISODES)
-        arrays = bank.gather(episodes)
-        device = self._device()
-        return DemoContext(
-            T_world_ee=torch.from_numpy(arrays.T_world_ee).to(device)[None],
-            gripper_open=torch.from_numpy(arrays.gripper_open).to(device)[None],
-            scene_positions=positions.to(device)[None],
-            scene_features=features.to(device)[None],
-        )
 
     def _encode_frames(self, points_world: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
         T_world_ee, _ = poses_from_vectors_torch(state)
         return self.network.encode_observation(points_world, T_world_ee)
-
-    def _encode_clouds(self, points_ee: Tensor) -> tuple[Tensor, Tensor]:
-        return self.network.encode_clouds(points_ee.to(self._device()))
 
     def _device(self) -> torch.device:
         return next(self.parameters()).device
@@ -453,7 +403,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return points.float(), state.float()
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
-        handed_in = list(self._demo_waypoints)
+        handed_in = [task for task, context in self._task_contexts.items() if context.handed_in]
         only_task = handed_in[0] if len(handed_in) == 1 else None
         return batch_task_names(batch.get("task"), batch_size, "instant_policy", only_task)
 

@@ -11,9 +11,10 @@ from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature
 from .contract import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
 
 
-def contract_input_features() -> dict[str, PolicyFeature]:
+def contract_input_features(num_points: int = NUM_POINTS) -> dict[str, PolicyFeature]:
+    """The inputs of the data contract, with clouds of ``num_points`` points."""
     return {
-        POINTCLOUD_KEY: PolicyFeature(type=FeatureType.STATE, shape=(NUM_POINTS, 3)),
+        POINTCLOUD_KEY: PolicyFeature(type=FeatureType.STATE, shape=(num_points, 3)),
         STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=POSE_GRIPPER_SHAPE),
     }
 

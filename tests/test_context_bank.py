@@ -1,11 +1,10 @@
 """The context bank (docs/design.md §6): each episode's L waypoints read once from a demonstration dataset, context
-sampling among the other episodes of a task, the frozen-encoder cache, and clear errors for datasets it cannot use."""
+sampling among the other episodes of a task, and clear errors for datasets it cannot use."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 from synthetic_demos import make_demonstration, object_pose, write_demo_dataset
 
 from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
@@ -13,7 +12,6 @@ from lerobot_instant_policy.data.context_bank import ContextBank
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
 from lerobot_instant_policy.data.lerobot_format import contract_features, create_dataset, read_episode, write_episode
 from lerobot_instant_policy.geometry.se3 import pose_from_pos_quat
-from lerobot_instant_policy.model.geometry_encoder import GeometryEncoder, encoder_preset
 
 PSEUDO_REPO = "local/bank_pseudo"
 SYNTHETIC_REPO = "local/bank_synthetic"
@@ -65,16 +63,16 @@ def test_bank_holds_each_episodes_waypoint_frames(pseudo_dataset, pseudo_bank):
     assert len(bank) == 6 and bank.num_waypoints == L and bank.num_points == 2048
     assert bank.tasks == sorted({episode["task"] for episode in episodes})
     assert bank.points_world.dtype == bank.T_world_ee.dtype == bank.gripper_open.dtype == np.float32
+    assert bank.episode_indices.tolist() == list(range(len(episodes)))
     for index, episode in enumerate(episodes):
-        item = bank.episode(index)
-        frames = item.frame_indices
-        assert item.task == episode["task"] and len(frames) == L and frames[0] == 0
+        frames = bank.frame_indices[index]
+        assert bank.task_of_row[index] == episode["task"] and len(frames) == L and frames[0] == 0
         assert frames[-1] == len(episode["state"]) - 1 and np.all(np.diff(frames) > 0)
-        assert item.points_world.shape == (L, 2048, 3)
-        np.testing.assert_array_equal(item.points_world, episode["points"][frames])
-        for pose, state in zip(item.T_world_ee, episode["state"][frames]):
+        assert bank.points_world[index].shape == (L, 2048, 3)
+        np.testing.assert_array_equal(bank.points_world[index], episode["points"][frames])
+        for pose, state in zip(bank.T_world_ee[index], episode["state"][frames]):
             np.testing.assert_allclose(pose, pose_from_pos_quat(state[:3], state[3:7]), atol=1e-6)
-        np.testing.assert_array_equal(item.gripper_open, commanded_gripper(episode)[frames])
+        np.testing.assert_array_equal(bank.gripper_open[index], commanded_gripper(episode)[frames])
 
 
 def test_waypoints_keep_gripper_changes_and_ignore_flipped_gripper_observations(pseudo_dataset, pseudo_bank):
@@ -84,7 +82,7 @@ def test_waypoints_keep_gripper_changes_and_ignore_flipped_gripper_observations(
         gripper = commanded_gripper(episode)
         changes = np.flatnonzero(gripper[1:] != gripper[:-1]) + 1
         assert len(changes) >= 1, "a pseudo-task has at least one gripper change"
-        frames = set(pseudo_bank.episode(index).frame_indices.tolist())
+        frames = set(pseudo_bank.frame_indices[index].tolist())
         assert set(changes.tolist()) | set((changes - 1).tolist()) <= frames
         faults += int((episode["state"][:, 7] != gripper).sum())
     assert faults > 0, "the generator flips observed gripper states on some frames; the bank must not see them"
@@ -102,7 +100,7 @@ def test_built_from_dataset_meta_like_from_the_root(pseudo_dataset, pseudo_bank)
 def test_episodes_of_task_and_unknown_task(pseudo_bank):
     for task in pseudo_bank.tasks:
         episodes = pseudo_bank.episodes_of_task(task)
-        assert len(episodes) == 3 and all(pseudo_bank.episode(episode).task == task for episode in episodes)
+        assert len(episodes) == 3 and all(pseudo_bank.task_of_row[episode] == task for episode in episodes)
     with pytest.raises(DemonstrationError, match=r"no episode of task 'stack' in the context bank; it has tasks \["):
         pseudo_bank.episodes_of_task("stack")
 
@@ -110,7 +108,7 @@ def test_episodes_of_task_and_unknown_task(pseudo_bank):
 def test_sample_context_draws_other_episodes_of_the_same_task(pseudo_bank):
     rng = np.random.default_rng(0)
     for episode in range(len(pseudo_bank)):
-        task = pseudo_bank.episode(episode).task
+        task = pseudo_bank.task_of_row[episode]
         same_task = set(pseudo_bank.episodes_of_task(task).tolist()) - {episode}
         context = pseudo_bank.sample_context(episode, 2, rng)
         assert context.shape == (2,) and set(context.tolist()) == same_task  # 2 others: all of them, no repeats
@@ -133,57 +131,15 @@ def test_gather_indexes_like_the_episode_array(pseudo_bank):
     arrays = pseudo_bank.gather(episodes)
     assert arrays.points_world.shape == (3, 2, L, 2048, 3)
     assert arrays.T_world_ee.shape == (3, 2, L, 4, 4) and arrays.gripper_open.shape == (3, 2, L)
-    np.testing.assert_array_equal(arrays.points_world[2, 0], pseudo_bank.episode(3).points_world)
-    np.testing.assert_array_equal(arrays.gripper_open[1, 1], pseudo_bank.episode(5).gripper_open)
-
-
-def test_points_ee_are_the_waypoint_clouds_in_their_ee_frames(pseudo_bank):
-    item = pseudo_bank.episode(2)
-    points_ee = pseudo_bank.points_ee(2)
-    rotations, translations = item.T_world_ee[:, :3, :3], item.T_world_ee[:, :3, 3]
-    back = np.einsum("lij,lpj->lpi", rotations, points_ee) + translations[:, None]
-    np.testing.assert_allclose(back, item.points_world, atol=1e-5)
-
-
-def test_encoder_outputs_are_cached_per_episode(pseudo_dataset):
-    bank = ContextBank.from_dataset(PSEUDO_REPO, pseudo_dataset[0], L, episodes=[0, 1, 2, 3])
-    calls = []
-
-    def encode(points_ee: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        calls.append(len(points_ee))
-        assert not torch.is_grad_enabled()
-        return points_ee[:, :16], points_ee[:, :16].norm(dim=-1, keepdim=True)
-
-    positions, features = bank.encoded(np.array([[0, 1], [2, 0]]), encode, chunk_size=2)
-    assert positions.shape == (2, 2, L, 16, 3) and features.shape == (2, 2, L, 16, 1)
-    assert calls == [2 * L, L] and bank.num_encoded == 3  # episodes 0, 1 in one chunk, then 2
-    expected = torch.from_numpy(bank.points_ee(2))[:, :16]
-    torch.testing.assert_close(positions[1, 0], expected)
-    torch.testing.assert_close(positions[1, 1], positions[0, 0])
-    bank.encoded(np.array([1, 0, 2]), encode)
-    assert calls == [2 * L, L], "cached episodes are not encoded again"
-    single = bank.encoded(np.array([3]), lambda points: points[:, 0])
-    assert single.shape == (1, L, 3) and calls == [2 * L, L]
-    bank.clear_encoded()
-    assert bank.num_encoded == 0
-
-
-def test_cache_works_with_the_frozen_geometry_encoder(pseudo_bank):
-    torch.manual_seed(0)
-    encoder = GeometryEncoder(encoder_preset("small")).eval()
-    positions, features = pseudo_bank.encoded(np.array([[1, 4]]), encoder)
-    assert positions.shape == (1, 2, L, 16, 3) and features.shape == (1, 2, L, 16, 256)
-    direct_positions, direct_features = encoder(torch.from_numpy(pseudo_bank.points_ee(4)))
-    torch.testing.assert_close(positions[0, 1], direct_positions)
-    torch.testing.assert_close(features[0, 1], direct_features)
-    pseudo_bank.clear_encoded()
+    np.testing.assert_array_equal(arrays.points_world[2, 0], pseudo_bank.points_world[3])
+    np.testing.assert_array_equal(arrays.gripper_open[1, 1], pseudo_bank.gripper_open[5])
 
 
 def test_from_demonstrations_in_python(synthetic_root):
     demos = [make_demonstration(object_pose(0.5, 0.0, 10.0 * index), "lift", seed=index) for index in range(3)]
     bank = ContextBank.from_demonstrations(demos, 6)
     assert bank.episode_indices.tolist() == [0, 1, 2] and bank.tasks == ["lift"]
-    np.testing.assert_array_equal(bank.episode(1).points_world, demos[1].points_world[bank.episode(1).frame_indices])
+    np.testing.assert_array_equal(bank.points_world[1], demos[1].points_world[bank.frame_indices[1]])
 
 
 def test_a_task_with_a_single_episode_has_no_context(synthetic_root):

@@ -9,9 +9,10 @@ import roma
 import torch
 from torch_geometric.nn import TransformerConv
 
+from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.model.dense_attention import dense_transformer_conv
 from lerobot_instant_policy.model.graph import ACTION_TO_ACTION, action_graph, dense_transform_attr, transform_attr
-from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork, InstantPolicyNetworkConfig
+from lerobot_instant_policy.model.instant_policy_network import DemoTensors, InstantPolicyNetwork
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -63,14 +64,16 @@ def test_dense_transform_attr_is_transform_attr_on_every_edge():
     sparse = transform_attr(frames.reshape(-1, 4, 4), frames.reshape(-1, 4, 4), store, keypoints, 4)
     nodes = horizon * len(keypoints)
     src, dst = store.edge_index
-    torch.testing.assert_close(dense[src // nodes, src % nodes, dst % nodes], sparse)
+    src_frame = (src % nodes) // len(keypoints)  # one attribute per source frame, shared by its keypoints
+    torch.testing.assert_close(dense[src // nodes, src_frame, dst % nodes], sparse)
 
 
 def test_network_dense_and_reference_paths_agree():
     """The same weights give the same flows and gripper logits, and the same gradients, on either path."""
     generator = torch.Generator().manual_seed(2)
     torch.manual_seed(0)
-    config = InstantPolicyNetworkConfig(reencode_action_clouds=False, dense_attention=True)
+    config = InstantPolicyConfig(reencode_action_clouds=False, dense_attention=True, pretrained_encoder=False,
+                                 device="cpu")
     network = InstantPolicyNetwork(config)
     batch, num_demos, length = 2, 2, 3
     demo_T = _random_poses(batch, num_demos, length, generator=generator)
@@ -83,8 +86,9 @@ def test_network_dense_and_reference_paths_agree():
     for dense in (True, False):
         network.config = dataclasses.replace(config, dense_attention=dense)
         network.zero_grad()
-        context = network.encode_context(demo_points, demo_T, torch.ones(batch, num_demos, length), points,
-                                         T_world_ee, torch.ones(batch))
+        demos = DemoTensors(demo_T, torch.ones(batch, num_demos, length),
+                            *network.encode_observation(demo_points, demo_T))
+        context = network.encode_context(demos, points, T_world_ee, torch.ones(batch))
         out = network.denoise(context, T_ee_actions, torch.full((batch, 8), -1.0), torch.tensor([5, 70]))
         out.square().sum().backward()
         grads = [p.grad.clone() for p in network.parameters() if p.grad is not None]

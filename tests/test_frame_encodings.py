@@ -12,6 +12,7 @@ import torch
 from synthetic_demos import object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.context_encoder import ContextEncoder
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from lerobot_instant_policy.data.context_bank import ContextBank
 from lerobot_instant_policy.frame_encodings import (
@@ -44,12 +45,12 @@ def _policy(dataset, **overrides) -> InstantPolicyPolicy:
 
 
 def _fingerprint(policy: InstantPolicyPolicy) -> str:
-    return encoder_fingerprint(policy.network.geometry_encoder, policy.network.config.encoder.to_dict())
+    return encoder_fingerprint(policy.network.geometry_encoder, policy.config.encoder_config.to_dict())
 
 
 def test_cached_scene_nodes_are_the_live_encoding_of_each_frame(dataset):
     policy = _policy(dataset)
-    encodings = policy.training_frame_encodings()
+    encodings = policy.training_context_encoder().frame_encodings
     assert len(encodings) == dataset.num_frames
     assert encodings.path == cache_path(dataset.root, _fingerprint(policy))
     frames = [0, 7, 13, 30, len(dataset) - 1]
@@ -76,11 +77,11 @@ def test_training_with_the_cache_computes_the_loss_of_live_encoding(dataset):
         loss, parts = policy.forward(batch)
         loss.backward()
         losses[cached] = (float(loss.detach()), parts)
-        # Without the cache the bank encodes its context episodes itself; with it, it encodes nothing and was read
-        # without the waypoints' clouds.
-        assert (policy.training_bank().num_encoded == 0) == cached
-        assert (policy.training_bank().points_world is None) == cached
-        assert (policy.training_frame_encodings() is not None) == cached
+        # Without the cache the context encoder encodes the context episodes' clouds itself; with it, the bank was
+        # read without them, so everything came from the cache.
+        encoder = policy.training_context_encoder()
+        assert (encoder.bank.points_world is None) == cached
+        assert (encoder.frame_encodings is not None) == cached
     assert losses[True][0] == pytest.approx(losses[False][0], rel=1e-4)
     assert losses[True][1]["num_demos"] == losses[False][1]["num_demos"]
 
@@ -88,10 +89,10 @@ def test_training_with_the_cache_computes_the_loss_of_live_encoding(dataset):
 def test_a_cache_is_reused_and_rebuilt_when_the_dataset_or_the_encoder_changes(dataset):
     policy = _policy(dataset)
     fingerprint = _fingerprint(policy)
-    path = policy.training_frame_encodings().path
+    path = policy.training_context_encoder().frame_encodings.path
     built_at = (path / META_FILE).stat().st_mtime_ns
     # A second policy with the same encoder reuses the cache (no rebuild).
-    assert _policy(dataset).training_frame_encodings().path == path
+    assert _policy(dataset).training_context_encoder().frame_encodings.path == path
     assert (path / META_FILE).stat().st_mtime_ns == built_at
 
     # A dataset whose files changed makes the cache stale: not loaded, rebuilt in place by the next policy.
@@ -99,7 +100,7 @@ def test_a_cache_is_reused_and_rebuilt_when_the_dataset_or_the_encoder_changes(d
     meta["dataset"]["data_files"][0][1] += 1
     (path / META_FILE).write_text(json.dumps(meta))
     assert load_frame_encodings(dataset.root, fingerprint) is None
-    rebuilt = _policy(dataset).training_frame_encodings()
+    rebuilt = _policy(dataset).training_context_encoder().frame_encodings
     assert rebuilt.path == path and load_frame_encodings(dataset.root, fingerprint) is not None
 
     # Other encoder weights get a cache of their own.
@@ -107,7 +108,7 @@ def test_a_cache_is_reused_and_rebuilt_when_the_dataset_or_the_encoder_changes(d
     with torch.no_grad():
         next(other.network.geometry_encoder.parameters()).add_(0.01)
     other.clear_context_caches()
-    assert other.training_frame_encodings().path != path
+    assert other.training_context_encoder().frame_encodings.path != path
     assert len(list((dataset.root / CACHE_DIR).iterdir())) == 2
 
 
@@ -134,7 +135,7 @@ def test_frame_encodings_need_a_bank_read_from_their_dataset(dataset):
     from lerobot_instant_policy.data.demonstrations import load_demonstrations
 
     policy = _policy(dataset)
-    encodings = policy.training_frame_encodings()
+    encodings = policy.training_context_encoder().frame_encodings
     demonstrations = load_demonstrations(REPO, dataset.root, "lift", 3)
     handed_in = ContextBank.from_demonstrations(demonstrations, policy.config.num_waypoints)
     with pytest.raises(ValueError, match="from their dataset"):
@@ -145,10 +146,10 @@ def test_frame_encodings_need_a_bank_read_from_their_dataset(dataset):
     episode = int(bank.episode_indices[4])
     indices = bank.dataset_indices(np.array([episode]))[0]
     points = dataset.hf_dataset.with_format("numpy", columns=[POINTCLOUD_KEY])[indices.tolist()][POINTCLOUD_KEY]
-    np.testing.assert_array_equal(points, bank.episode(episode).points_world)
+    np.testing.assert_array_equal(points, bank.points_world[bank.episode_indices.tolist().index(episode)])
 
 
-def test_a_bank_read_without_clouds_keeps_poses_and_indices_and_refuses_to_encode(dataset):
+def test_a_bank_read_without_clouds_keeps_poses_and_indices_and_needs_frame_encodings(dataset):
     full = ContextBank.from_dataset(REPO, dataset.root, 10)
     light = ContextBank.from_dataset(REPO, dataset.root, 10, read_points=False)
     assert light.num_points is None and full.num_points == dataset.meta.features[POINTCLOUD_KEY]["shape"][0]
@@ -156,10 +157,8 @@ def test_a_bank_read_without_clouds_keeps_poses_and_indices_and_refuses_to_encod
     np.testing.assert_array_equal(light.dataset_indices(episodes), full.dataset_indices(episodes))
     np.testing.assert_array_equal(light.gather(episodes).T_world_ee, full.gather(episodes).T_world_ee)
     assert light.gather(episodes).points_world is None
-    from lerobot_instant_policy.data.demonstrations import DemonstrationError
-
-    with pytest.raises(DemonstrationError, match="without its point clouds"):
-        light.points_ee(0)
+    with pytest.raises(ValueError, match="read without its clouds: give the frame encodings"):
+        ContextEncoder(_policy(dataset).network, light)
 
 
 def test_training_refuses_a_dataset_with_clouds_of_another_size(dataset):
@@ -168,10 +167,6 @@ def test_training_refuses_a_dataset_with_clouds_of_another_size(dataset):
     torch.manual_seed(0)
     config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, max_demos=2)
     config.input_features[POINTCLOUD_KEY] = PolicyFeature(type=FeatureType.STATE, shape=(1024, 3))
-    policy = InstantPolicyPolicy(config, dataset_meta=dataset.meta).train()
-    batch = next(iter(torch.utils.data.DataLoader(dataset, batch_size=2)))
     with pytest.raises(ValueError, match="point clouds of the wrong size"):
-        policy.training_bank()
+        InstantPolicyPolicy(config, dataset_meta=dataset.meta)
     assert not (dataset.root / CACHE_DIR).exists()  # refused before anything was encoded or written
-    with pytest.raises(ValueError, match="wrong size"):
-        policy.forward(batch)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_instant_policy.cli import action_error as ae
+from lerobot_instant_policy.evaluation import action_error as ae
 from lerobot_instant_policy.cli.generate import main as generate_main
 
 TRAIN = Path(sys.executable).parent / "lerobot-train"

@@ -117,6 +117,9 @@ def test_optimizer_and_scheduler_presets():
         ({"gripper_flip_probability": 1.5}, r"gripper_flip_probability must lie in \[0, 1\]"),
         ({"optimizer_lr": 0.0}, "optimizer_lr and optimizer_grad_clip_norm must be positive"),
         ({"encoder_weights": "weights.pt"}, "encoder_weights must name a .safetensors file"),
+        ({"flow_loss_weighting": "snr"}, r"flow_loss_weighting must be one of \['uniform', 'noise'\]"),
+        ({"mlp_ratio": 0}, "mlp_ratio must be at least 1"),
+        ({"max_translation": 0.0}, "max_translation and max_rotation_deg must be positive"),
     ],
 )
 def test_invalid_values_are_refused_with_a_clear_message(overrides, message):
@@ -125,13 +128,19 @@ def test_invalid_values_are_refused_with_a_clear_message(overrides, message):
 
 
 def test_encoder_weights_must_match_the_encoder_preset(tmp_path):
+    """The config reads no file; the policy loads the weights in an explicit step and refuses another architecture."""
+    from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+
     path = tmp_path / "encoder.safetensors"
     save_occupancy_network(OccupancyNetwork.from_preset("small"), path)
     assert config(encoder_weights=str(path)).require_encoder_weights() == path
-    with pytest.raises(ValueError, match=r"encoder weights .*encoder\.safetensors were trained for encoder config .*"
-                       r"which is not the 'paper' encoder_preset"):
-        config(encoder_preset="paper", encoder_weights=str(path))
-    config(encoder_preset="paper", encoder_weights=str(path), pretrained_encoder=False)  # a random encoder: not read
+    paper = config(encoder_preset="paper", encoder_weights=str(path))  # building the config reads nothing
+    with pytest.raises(ValueError, match=r"encoder weights .*encoder\.safetensors were trained for config .*"
+                       r"which does not match the requested"):
+        InstantPolicyPolicy(paper)
+    InstantPolicyPolicy(config(encoder_weights=str(path)))  # the matching architecture loads
+    InstantPolicyPolicy(config(preset="paper", encoder_preset="small", hidden_dim=64, num_heads=4,
+                               encoder_weights=str(tmp_path / "absent.safetensors"), pretrained_encoder=False))
 
 
 def test_missing_encoder_weights_say_how_to_get_them(tmp_path):
@@ -156,6 +165,12 @@ def test_validate_features_names_what_is_missing_or_wrong():
     })
     cloud.validate_features()
     assert cloud.num_points == 1024
+    few = config(input_features={
+        POINTCLOUD_KEY: PolicyFeature(type=FeatureType.STATE, shape=(100, 3)),
+        STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(8,)),
+    })
+    with pytest.raises(ValueError, match="clouds of 100 points are fewer than the 'small' geometry encoder's 256"):
+        few.validate_features()
 
 
 def test_cli_flags_select_the_preset_and_override_fields():

@@ -2,7 +2,6 @@
 variable context size, learning, and input errors."""
 
 import dataclasses
-import json
 from pathlib import Path
 
 import pytest
@@ -11,25 +10,22 @@ import torch
 from safetensors.torch import load_file, save_file
 
 import lerobot_instant_policy.model as model_package
+from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.model.action_diffusion import points_in_action_frames
-from lerobot_instant_policy.model.geometry_encoder import GeometryEncoderConfig
-from lerobot_instant_policy.model.instant_policy_network import (
-    InstantPolicyNetwork,
-    InstantPolicyNetworkConfig,
-    network_preset,
-)
+from lerobot_instant_policy.model.instant_policy_network import DemoTensors, InstantPolicyNetwork
+from lerobot_instant_policy.policy_features import contract_input_features
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
-TINY_ENCODER = GeometryEncoderConfig(num_centroids=(32, 8), layer_widths=((16, 32), (32, 48)), num_frequencies=6)
-POINTS = 128
+POINTS = 256  # the small encoder's first level samples 256 centroids
 
 
-def _tiny_config(**overrides) -> InstantPolicyNetworkConfig:
-    values = dict(hidden_dim=32, num_heads=4, encoder=TINY_ENCODER, num_points=POINTS, max_num_demos=5,
-                  max_demo_length=12)
-    return InstantPolicyNetworkConfig(**{**values, **overrides})
+def _tiny_config(**overrides) -> InstantPolicyConfig:
+    """The policy's config, as the network takes it: small preset, hidden 32, clouds of POINTS points."""
+    values = dict(hidden_dim=32, num_heads=4, pretrained_encoder=False, device="cpu",
+                  input_features=contract_input_features(POINTS))
+    return InstantPolicyConfig(**{**values, **overrides})
 
 
 def _network(seed: int = 0, **overrides) -> InstantPolicyNetwork:
@@ -64,33 +60,30 @@ def _batch(batch=2, num_demos=2, length=3, seed=0, dtype=torch.float32, points=P
     )
 
 
-def _context(network, batch):
-    keys = ("demo_points_world", "demo_T_world_ee", "demo_gripper", "points_world", "T_world_ee", "gripper")
-    return network.encode_context(**{key: batch[key] for key in keys})
+def _demos(network, batch) -> DemoTensors:
+    """The batch's demonstrations as the network reads them: each waypoint cloud encoded in its own EE frame (what
+    the policy's ContextEncoder computes)."""
+    positions, features = network.encode_observation(batch["demo_points_world"], batch["demo_T_world_ee"])
+    return DemoTensors(batch["demo_T_world_ee"], batch["demo_gripper"], positions, features)
+
+
+def _context(network, batch, **kwargs):
+    return network.encode_context(
+        _demos(network, batch), batch["points_world"], batch["T_world_ee"], batch["gripper"], **kwargs
+    )
 
 
 # ---------------------------------------------------------------- presets and sizes
 def test_presets_have_the_documented_sizes():
-    paper = network_preset("paper")
+    paper = InstantPolicyConfig(preset="paper", pretrained_encoder=False, device="cpu")
     assert (paper.hidden_dim, paper.num_heads, paper.hidden_dim // paper.num_heads) == (1024, 16, 64)
-    assert paper.encoder.feature_dim == 512 and paper.encoder.num_nodes == 16
+    assert paper.encoder_config.feature_dim == 512 and paper.encoder_config.num_nodes == 16
     network = InstantPolicyNetwork(paper)
     trainable = sum(p.numel() for p in network.parameters() if p.requires_grad)
     assert 90e6 < trainable < 150e6, trainable  # the paper's ≈118M
     assert all(not p.requires_grad for p in network.geometry_encoder.parameters())
-    small = InstantPolicyNetwork(network_preset("small"))
+    small = InstantPolicyNetwork(InstantPolicyConfig(preset="small", pretrained_encoder=False, device="cpu"))
     assert sum(p.numel() for p in small.parameters() if p.requires_grad) < 5e6
-    with pytest.raises(ValueError, match="unknown network preset"):
-        network_preset("huge")
-
-
-def test_config_validation():
-    with pytest.raises(ValueError, match="divisible"):
-        _tiny_config(hidden_dim=30)
-    with pytest.raises(ValueError, match="num_inference_steps"):
-        _tiny_config(num_inference_steps=0)
-    with pytest.raises(ValueError, match="num_points"):
-        _tiny_config(num_points=16)
 
 
 # ---------------------------------------------------------------- the authors' five defects
@@ -105,21 +98,29 @@ def test_defect_1_timestep_changes_the_network_output():
 
 
 def test_defect_2_ddim_renoises_between_steps():
-    network = _network()
-    context = _context(network, _batch())
-    trajectory = []
-    network.sample_actions(context, torch.Generator().manual_seed(0), num_inference_steps=4, trajectory=trajectory)
-    assert [step.timestep for step in trajectory] == [99, 74, 49, 24]
-    alphas = network.diffusion.inference_scheduler.alphas_cumprod
-    for step, following in zip(trajectory, trajectory[1:]):
-        # The intermediate sample is not the clean prediction: it carries the re-applied noise of the next level.
-        assert (step.next_sample - step.predicted_clean).abs().max() > 1e-2
-        a_t, a_prev = alphas[step.timestep], alphas[following.timestep]
-        noise = (step.sample - a_t.sqrt() * step.predicted_clean) / (1 - a_t).sqrt()
-        expected = (a_prev.sqrt() * step.predicted_clean + (1 - a_prev).sqrt() * noise).clamp(-1, 1)
-        torch.testing.assert_close(step.next_sample, expected)
-        assert torch.equal(following.sample, step.next_sample)
-    torch.testing.assert_close(trajectory[-1].next_sample, trajectory[-1].predicted_clean)
+    """Each DDIM iteration's next sample is the clean prediction re-noised to the next level (DDIM, η = 0), not the
+    clean prediction itself; only the last iteration returns the clean prediction."""
+    diffusion = _network().diffusion
+    flows = 0.3 * torch.randn(2, 8, 6, 7, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    seen = []  # (timestep, the sample the predictor was given, the clean value its prediction implies)
+
+    def predict(T_noisy, gripper, timesteps):
+        sample = torch.cat([diffusion.normalize_poses(T_noisy), gripper[..., None]], dim=-1)
+        clean_poses = diffusion.normalize_poses(diffusion.predicted_clean_actions(T_noisy, flows[..., :6]))
+        clean = torch.cat([clean_poses, flows[..., 6].mean(dim=-1).clamp(-1, 1)[..., None]], dim=-1)
+        seen.append((int(timesteps[0]), sample, clean))
+        return flows
+
+    result = diffusion.sample(predict, 2, 4, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    assert [timestep for timestep, _, _ in seen] == [99, 74, 49, 24]
+    alphas = diffusion.inference_scheduler.alphas_cumprod.double()
+    for (t, sample, clean), (t_next, next_sample, _) in zip(seen, seen[1:]):
+        a_t, a_next = alphas[t], alphas[t_next]
+        noise = (sample - a_t.sqrt() * clean) / (1 - a_t).sqrt()
+        expected = (a_next.sqrt() * clean + (1 - a_next).sqrt() * noise).clamp(-1, 1)
+        torch.testing.assert_close(next_sample, expected)
+        assert (next_sample - clean).abs().max() > 1e-2  # re-noised, not the clean prediction
+    torch.testing.assert_close(result, seen[-1][2])
 
 
 def test_defect_3_action_frame_transform_is_R_transpose_of_p_minus_t():
@@ -151,12 +152,8 @@ def test_defect_4_action_step_0_and_current_gripper_nodes_have_distinct_embeddin
     torch.testing.assert_close(observation, before)
 
 
-def test_defect_5_no_pickle_configs_are_json_and_weights_safetensors(tmp_path):
-    config = _tiny_config(reencode_action_clouds=False)
-    restored = InstantPolicyNetworkConfig.from_dict(json.loads(json.dumps(config.to_dict())))
-    assert restored == config
-    with pytest.raises(ValueError, match="unknown"):
-        InstantPolicyNetworkConfig.from_dict({**config.to_dict(), "pickled": True})
+def test_defect_5_no_pickle_weights_are_safetensors(tmp_path):
+    """(The config is JSON: ``tests/test_instant_policy_config.py``.)"""
     network = _network()
     save_file(network.state_dict(), tmp_path / "model.safetensors")
     other = _network(seed=1)
@@ -246,7 +243,7 @@ def test_context_is_computed_once_and_reused_by_every_denoising_step(reencode):
     torch.testing.assert_close(rotations @ rotations.transpose(-1, -2), torch.eye(3).expand_as(rotations))
 
 
-@pytest.mark.parametrize("num_demos, length", [(1, 1), (1, 5), (3, 2), (5, 12)])
+@pytest.mark.parametrize("num_demos, length", [(1, 2), (1, 5), (3, 2), (5, 12)])
 def test_variable_number_and_length_of_demonstrations(num_demos, length):
     network = _network()
     context = _context(network, _batch(batch=1, num_demos=num_demos, length=length))
@@ -256,37 +253,34 @@ def test_variable_number_and_length_of_demonstrations(num_demos, length):
     assert (actions[0, :, :3, 3].abs() <= translation_bounds[:, None]).all()
 
 
-def test_cached_demo_geometry_gives_the_same_context():
+def test_cached_scene_nodes_and_waypoint_features_give_the_same_context():
     network = _network()
     batch = _batch()
-    geometry = network.encode_demo_geometry(batch["demo_points_world"], batch["demo_T_world_ee"])
-    cached = network.encode_context(
-        None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
-        batch["gripper"], demo_geometry=geometry,
-    )
-    torch.testing.assert_close(cached.current_gripper_features, _context(network, batch).current_gripper_features)
+    joint = _context(network, batch)
 
     # The live cloud's scene nodes given as encode_observation computes them (a frame-encoding cache) change nothing.
     scene = network.encode_observation(batch["points_world"], batch["T_world_ee"])
-    from_cache = network.encode_context(
-        None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
-        batch["gripper"], demo_geometry=geometry, scene_geometry=scene,
-    )
-    torch.testing.assert_close(from_cache.current_gripper_features, cached.current_gripper_features)
+    from_cache = _context(network, batch, scene_geometry=scene)
+    torch.testing.assert_close(from_cache.current_gripper_features, joint.current_gripper_features)
 
     # σ on the demonstrations alone, handed in (a policy's per-task cache), gives the joint computation's context.
-    waypoints = network.encode_demo_waypoints(geometry, batch["demo_gripper"])
+    demos = _demos(network, batch)
+    waypoints = network.encode_demo_waypoints(demos)
     assert waypoints.shape == (*batch["demo_gripper"].shape, 6, network.config.hidden_dim)
-    from_waypoints = network.encode_context(
-        None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
-        batch["gripper"], demo_waypoint_features=waypoints,
-    )
-    torch.testing.assert_close(from_waypoints.current_gripper_features, cached.current_gripper_features)
+    from_waypoints = _context(network, batch, demo_waypoint_features=waypoints)
+    torch.testing.assert_close(from_waypoints.current_gripper_features, joint.current_gripper_features)
     with pytest.raises(ValueError, match="demo waypoint features"):
-        network.encode_context(
-            None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
-            batch["gripper"], demo_waypoint_features=waypoints[:, :1],
-        )
+        _context(network, batch, demo_waypoint_features=waypoints[:, :1])
+
+
+def test_one_tasks_demonstrations_expand_to_a_batch_without_copies():
+    network = _network()
+    batch = _batch(batch=1)
+    demos = _demos(network, batch)
+    expanded = demos.expand(3)
+    assert expanded.batch_size == 3 and expanded.scene_features.data_ptr() == demos.scene_features.data_ptr()
+    with pytest.raises(ValueError, match="only a batch of one"):
+        expanded.expand(6)
 
 
 @pytest.mark.parametrize("action_scene_graph", [True, False])
@@ -307,17 +301,15 @@ def test_without_the_action_scene_graph_actions_see_the_scene_only_through_the_c
 # ---------------------------------------------------------------- learning
 def test_loss_falls_when_overfitting_a_tiny_batch():
     torch.manual_seed(0)
-    network = InstantPolicyNetwork(network_preset("small", num_points=256, reencode_action_clouds=False)).train()
-    batch = _batch(batch=2, num_demos=1, length=3, points=256, seed=5)
-    geometry = network.encode_demo_geometry(batch["demo_points_world"], batch["demo_T_world_ee"])
+    network = InstantPolicyNetwork(_tiny_config(preset="small", hidden_dim=None, num_heads=None,
+                                                reencode_action_clouds=False)).train()
+    batch = _batch(batch=2, num_demos=1, length=3, seed=5)
+    demos = _demos(network, batch)
     optimizer = torch.optim.AdamW([p for p in network.parameters() if p.requires_grad], lr=1e-3)
     generator = torch.Generator().manual_seed(0)
     losses = []
     for _ in range(100):
-        context = network.encode_context(
-            None, batch["demo_T_world_ee"], batch["demo_gripper"], batch["points_world"], batch["T_world_ee"],
-            batch["gripper"], demo_geometry=geometry,
-        )
+        context = network.encode_context(demos, batch["points_world"], batch["T_world_ee"], batch["gripper"])
         parts = network.training_loss(context, batch["T_ee_actions"], batch["action_gripper"], generator)
         optimizer.zero_grad()
         parts["loss"].backward()
@@ -334,12 +326,10 @@ def test_loss_falls_when_overfitting_a_tiny_batch():
 @pytest.mark.parametrize(
     "key, change, message",
     [
-        ("demo_points_world", lambda x: x.index_put_((torch.tensor(0),), torch.tensor(float("nan"))), "NaN"),
         ("points_world", lambda x: x.index_put_((torch.tensor(0),), torch.tensor(float("nan"))), "NaN"),
         ("T_world_ee", lambda x: x.index_put_((torch.tensor(0),), torch.tensor(float("nan"))), "NaN"),
         ("demo_T_world_ee", lambda x: x.index_put_((torch.tensor(1),), torch.tensor(float("inf"))), "NaN"),
-        ("points_world", lambda x: x[:, :100], "num_points=128"),
-        ("demo_points_world", lambda x: x[..., :100, :], "num_points=128"),
+        ("points_world", lambda x: x[:, :100], "num_points=256"),
         ("gripper", lambda x: x[:1], "gripper must have shape"),
     ],
 )
@@ -351,14 +341,17 @@ def test_bad_inputs_raise_clear_errors(key, change, message):
         _context(network, batch)
 
 
-@pytest.mark.parametrize("num_demos, length, message", [(6, 3, "N=6"), (2, 13, "L=13"), (0, 3, "N=0")])
+@pytest.mark.parametrize("num_demos, length, message", [(9, 2, "N=9"), (1, 33, "L=33"), (0, 3, "N=0"), (2, 1, "L=1")])
 def test_context_size_outside_the_supported_range_is_refused(num_demos, length, message):
     network = _network()
     batch = _batch(num_demos=max(num_demos, 1), length=length)
+    demos = _demos(network, batch)
     if num_demos == 0:
-        batch = {k: v[:, :0] if k.startswith("demo_") else v for k, v in batch.items()}
+        demos = DemoTensors(*(value[:, :0] for value in dataclasses.astuple(demos)))
     with pytest.raises(ValueError, match=message):
-        _context(network, batch)
+        network.encode_context(demos, batch["points_world"], batch["T_world_ee"], batch["gripper"])
+    with pytest.raises(ValueError, match=message):
+        network.encode_demo_waypoints(demos)
 
 
 def test_bad_action_inputs_and_step_counts_raise():
@@ -404,8 +397,6 @@ def test_flow_loss_weights_favour_high_noise_and_average_one():
     assert float(noise.mean()) == pytest.approx(1.0, abs=1e-5)
     with pytest.raises(ValueError, match="unknown flow loss weighting"):
         diffusion.loss_weights(timesteps, "snr")
-    with pytest.raises(ValueError, match="flow_loss_weighting"):
-        _tiny_config(flow_loss_weighting="snr")
 
 
 def test_flow_loss_weighting_reweighs_only_the_flow_terms():

@@ -109,8 +109,8 @@ def test_any_number_of_demonstrations_and_waypoints_at_inference(policy):
     observation = live_observation()
     for num_demos, num_waypoints in [(1, 4), (4, NUM_FRAMES), (2, 2)]:
         policy.set_demonstrations(lift_demos(num_demos), num_waypoints=num_waypoints)
-        context = policy.demo_context(TASK)
-        assert (context.num_demos, context.num_waypoints) == (num_demos, num_waypoints)
+        demos = policy.task_context(TASK).demos
+        assert (demos.num_demos, demos.num_waypoints) == (num_demos, num_waypoints)
         chunk = policy.predict_action_chunk(observation, generator=torch.Generator().manual_seed(0))
         assert chunk.shape == (1, 8, 8) and torch.isfinite(chunk).all()
 
@@ -191,9 +191,9 @@ def test_loss_falls_when_overfitting_a_tiny_dataset(tiny_dataset):
     # The frozen encoder never changes, and the training bank stays out of the state dict.
     assert not any(key.startswith("_training_bank") for key in policy.state_dict())
     assert all(not parameter.requires_grad for parameter in policy.network.geometry_encoder.parameters())
-    # Every frame and waypoint came from the frame-encoding cache beside the dataset: the bank encoded nothing.
-    assert policy.training_frame_encodings() is not None
-    assert policy.training_bank().num_encoded == 0
+    # Every frame and waypoint came from the frame-encoding cache beside the dataset: nothing else was encoded.
+    encoder = policy.training_context_encoder()
+    assert encoder.frame_encodings is not None and encoder.bank.points_world is None
 
 
 def test_gripper_flip_probability_changes_the_current_gripper_state(tiny_dataset, monkeypatch):
@@ -202,7 +202,7 @@ def test_gripper_flip_probability_changes_the_current_gripper_state(tiny_dataset
     seen = []
     encode_context = policy.network.encode_context
     monkeypatch.setattr(policy.network, "encode_context",
-                        lambda *args, **kwargs: seen.append(args[5].clone()) or encode_context(*args, **kwargs))
+                        lambda *args, **kwargs: seen.append(args[3].clone()) or encode_context(*args, **kwargs))
     batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=4, shuffle=False)))
     policy.forward(batch)
     assert torch.equal(seen[0], 1.0 - (batch[STATE_KEY][:, 7] > 0.5).float())
@@ -220,9 +220,8 @@ def test_training_needs_the_dataset_and_an_episode_index(tiny_dataset):
         policy.forward({key: value for key, value in batch.items() if key != "episode_index"})
     with pytest.raises(ValueError, match="action"):
         policy.forward({**batch, ACTION_KEY: batch[ACTION_KEY][:, :3]})
-    with pytest.raises(DemonstrationError, match="needs at least 20 frames"):
-        InstantPolicyPolicy(InstantPolicyConfig(device="cpu", num_waypoints=20),
-                            dataset_meta=tiny_dataset.meta).forward(batch)
+    with pytest.raises(DemonstrationError, match="needs at least 20 frames"):  # read when the policy is built
+        InstantPolicyPolicy(InstantPolicyConfig(device="cpu", num_waypoints=20), dataset_meta=tiny_dataset.meta)
 
 
 # ---------------------------------------------------------------------------------------------- bad input
@@ -293,7 +292,7 @@ def test_demo_dataset_without_the_task_or_with_too_few_frames(tiny_dataset):
     with pytest.raises(DemonstrationError, match="no episode of task 'stack'.*lift"):
         policy.predict_action_chunk({**live_observation(), "task": ["stack"]})
     chunk = policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(0))
-    assert chunk.shape == (1, 8, 8) and policy.demo_context(TASK).num_demos == 2
+    assert chunk.shape == (1, 8, 8) and policy.task_context(TASK).demos.num_demos == 2
     long = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", demo_repo_id=REPO, demo_root=root, num_waypoints=13))
     with pytest.raises(DemonstrationError, match="12 frames cannot give 13 waypoints"):
         long.predict_action_chunk(live_observation())
@@ -317,18 +316,13 @@ def test_sigma_on_the_demonstrations_runs_once_per_task_and_again_after_the_weig
     again = model.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(5))
     assert len(calls) == 1 and torch.equal(first, again)
     # The cached σ features give what the joint computation (σ on demos and live frame together) gives.
-    demos = model.demo_context(TASK)
+    task_context = model.task_context(TASK)
     observation = live_observation()
     T_world_ee, gripper = poses_from_vectors_torch(observation[STATE_KEY])
     with torch.no_grad():
-        joint = model.network.encode_context(
-            None, demos.T_world_ee, demos.gripper_open, observation[POINTCLOUD_KEY], T_world_ee, gripper,
-            demo_geometry=(demos.scene_positions, demos.scene_features),
-        )
-        cached = model.network.encode_context(
-            None, demos.T_world_ee, demos.gripper_open, observation[POINTCLOUD_KEY], T_world_ee, gripper,
-            demo_waypoint_features=model.demo_waypoint_features(demos),
-        )
+        joint = model.network.encode_context(task_context.demos, observation[POINTCLOUD_KEY], T_world_ee, gripper)
+        cached = model.network.encode_context(task_context.demos, observation[POINTCLOUD_KEY], T_world_ee, gripper,
+                                              demo_waypoint_features=task_context.waypoint_features)
     torch.testing.assert_close(cached.current_gripper_features, joint.current_gripper_features)
     # An optimizer step changes σ's weights: the cached features are recomputed, not reused.
     optimizer = torch.optim.SGD(model.get_optim_params(), lr=0.1)
@@ -414,8 +408,9 @@ def test_n_is_capped_so_that_no_demonstration_repeats(tiny_dataset, monkeypatch)
     policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", min_demos=4, max_demos=5),
                                  dataset_meta=tiny_dataset.meta)
     drawn = []
-    sample_context = policy.training_bank().sample_context
-    monkeypatch.setattr(policy.training_bank(), "sample_context",
+    bank = policy.training_context_encoder().bank
+    sample_context = bank.sample_context
+    monkeypatch.setattr(bank, "sample_context",
                         lambda episode, n, rng: drawn.append(sample_context(episode, n, rng)) or drawn[-1])
     batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=4, shuffle=False)))
     _, parts = policy.forward(batch)

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import pytest
 import torch
-from test_instant_policy_network import _batch, _context, _network
+from test_instant_policy_network import _batch, _context, _network, _tiny_config
 
 from lerobot_instant_policy.geometry.rigid_torch import compose, full_precision, invert_rigid, transform_points
 from lerobot_instant_policy.model.action_diffusion import points_in_action_frames
 from lerobot_instant_policy.model.graph import dense_transform_attr
-from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork, network_preset
+from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -64,7 +64,7 @@ def test_loss_and_sampled_actions_stay_float32_and_close_under_autocast():
 
 def test_training_under_autocast_lowers_the_loss():
     torch.manual_seed(0)
-    network = InstantPolicyNetwork(network_preset("small", num_points=256, reencode_action_clouds=False)).train()
+    network = InstantPolicyNetwork(_tiny_config(hidden_dim=None, num_heads=None, reencode_action_clouds=False)).train()
     batch = _batch(batch=2, num_demos=1, length=3, points=256, seed=5)
     optimizer = torch.optim.AdamW([p for p in network.parameters() if p.requires_grad], lr=1e-3)
     generator = torch.Generator().manual_seed(0)

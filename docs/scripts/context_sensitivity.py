@@ -26,7 +26,7 @@ import json
 import numpy as np
 import torch
 
-from lerobot_instant_policy.cli.action_error import load_held_out_tasks, predict_task, swapped_context
+from lerobot_instant_policy.evaluation.action_error import load_held_out_tasks, predict_task, swapped_context
 from lerobot_instant_policy.training.loss_curve import load_policy
 
 

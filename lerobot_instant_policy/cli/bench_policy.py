@@ -104,7 +104,7 @@ def bench_train_step(
     """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed), and the process's peak
     resident memory. With ``frame_cache`` every frame's scene nodes come from frame encodings computed beforehand, as
     ``lerobot-train`` reads them from beside its dataset; without it, the live clouds are encoded at every step and
-    the context waypoints once (the bank's cache is warm before timing). ``use_amp`` runs ``forward`` under
+    the context waypoints once (the context encoder's cache is warm before timing). ``use_amp`` runs ``forward`` under
     ``torch.autocast`` with the device's default dtype (bfloat16 on the CPU), as ``lerobot-train
     --policy.use_amp=true`` does."""
     from ..frame_encodings import FrameEncodings
@@ -152,7 +152,7 @@ def bench_train_step(
         if config.device == "cuda":
             torch.cuda.synchronize()
 
-    step()  # warm-up (without frame encodings: fills the bank's encoder cache)
+    step()  # warm-up (without frame encodings: fills the context encoder's cache)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()

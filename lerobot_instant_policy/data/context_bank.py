@@ -3,34 +3,30 @@
 During training, each frame of an episode gets as context ``N`` *other* episodes of the same ``task`` (the
 demonstrations of one pseudo-task). The bank is built once, from the dataset's metadata root or from
 ``Demonstration`` objects, and holds per episode only what the context graph needs: the waypoints' object points
-(world frame), EE poses and gripper states. It is a plain object, never a module buffer, so it stays out of
-``model.safetensors``. Since the geometry encoder is frozen, its outputs per (episode, waypoint) can be cached
-in the bank too (``encoded``).
+(world frame), EE poses and gripper states, and the waypoint frames' dataset ``index``. It is pure data: it never
+calls the model (the policy's ``ContextEncoder`` turns its waypoints into the network's tensors) and is never a
+module buffer, so it stays out of ``model.safetensors``.
 
 Gripper state of a waypoint: the state the demonstrator had commanded up to that frame (``action[t − 1]``'s
 gripper entry; ``state[0]``'s at the first frame). On a clean demonstration this is the observed state; it stays
 right on the frames whose observed gripper state the pseudo-demonstration generator flips on purpose
 (docs/design.md §7), which would otherwise count as gripper changes.
 
-Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048), plus the cached encoder outputs; a bank
-read with ``read_points=False`` (training from frame encodings) holds only the poses, gripper states and indices.
+Memory: ``L · P · 3`` float32 per episode (240 KiB at L = 10, P = 2048); a bank read with ``read_points=False`` (training from frame encodings) holds only the poses, gripper states and indices.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors
 from .demonstrations import Demonstration, DemonstrationError, open_demo_dataset
 from .waypoints import StopCriterion, extract_waypoints
-
-Encoded = torch.Tensor | tuple[torch.Tensor, ...]
 
 
 @dataclass(frozen=True)
@@ -93,7 +89,6 @@ class ContextBank:
             by_task.setdefault(task, []).append(episode)
         self._episodes_of_task = {task: np.array(episodes, dtype=np.int64) for task, episodes in by_task.items()}
         self._context_task = {task: task for task in by_task}  # whose episodes a task's frames get as context
-        self._encoded: dict[int, Encoded] = {}
 
     @classmethod
     def from_dataset(
@@ -200,22 +195,10 @@ class ContextBank:
             raise DemonstrationError(f"no episode of task {task!r} in the context bank; it has tasks {self.tasks}")
         return episodes.copy()
 
-    def episode(self, episode_index: int) -> EpisodeWaypoints:
-        row = self._row(episode_index)
-        return EpisodeWaypoints(
-            int(episode_index),
-            self.task_of_row[row],
-            self.frame_indices[row],
-            None if self.points_world is None else self.points_world[row],
-            self.T_world_ee[row],
-            self.gripper_open[row],
-            None if self._dataset_indices[row, 0] < 0 else self._dataset_indices[row],
-        )
-
     def with_swapped_contexts(self) -> ContextBank:
         """The same bank, except that the frames of every task get the episodes of the *next* task (in sorted task
         order, the last task the first's) as context: the context-swap reference of the learning measurements. It
-        shares this bank's arrays and encoder cache."""
+        shares this bank's arrays."""
         tasks = self.tasks
         if len(tasks) < 2:
             raise DemonstrationError("a context swap needs at least 2 tasks in the bank")
@@ -266,57 +249,6 @@ class ContextBank:
         if (indices < 0).any():
             raise DemonstrationError("these context episodes were handed in, not read from a dataset: no frame index")
         return indices
-
-    def points_ee(self, episode_index: int) -> np.ndarray:
-        """``(L, P, 3)`` float32: each waypoint's object points in its own EE frame, ``R_WEᵀ (p − t_WE)``."""
-        if self.points_world is None:
-            raise DemonstrationError("this context bank was read without its point clouds (read_points=False)")
-        row = self._row(episode_index)
-        rotations, translations = self.T_world_ee[row, :, :3, :3], self.T_world_ee[row, :, :3, 3]
-        return np.einsum("lpi,lij->lpj", self.points_world[row] - translations[:, None], rotations).astype(np.float32)
-
-    def encoded(self, episode_indices, encode: Callable[[torch.Tensor], Encoded], chunk_size: int = 64) -> Encoded:
-        """Frozen-encoder outputs of the waypoints of ``episode_indices (...)``, cached per (episode, waypoint).
-
-        ``encode`` maps waypoint clouds in their EE frames, ``points_ee (K, P, 3)`` float32 on the CPU, to a tensor
-        or a tuple of tensors with leading dimension ``K`` (e.g. the geometry encoder's ``node_positions (K, M, 3)``
-        and ``node_features (K, M, D)``); it runs under ``torch.no_grad`` on at most ``chunk_size`` episodes' waypoints
-        at a time, once per episode. The result has each output's shape with ``K`` replaced by ``(..., L)``, on the
-        device ``encode`` returned. The cache belongs to one encoder: call ``clear_encoded`` before using another.
-        """
-        rows = self._rows(episode_indices)
-        missing = [int(episode) for episode in dict.fromkeys(self.episode_indices[rows].reshape(-1).tolist())
-                   if episode not in self._encoded]
-        for start in range(0, len(missing), chunk_size):
-            chunk = missing[start : start + chunk_size]
-            points = torch.from_numpy(np.concatenate([self.points_ee(episode) for episode in chunk]))
-            with torch.no_grad():
-                outputs = encode(points)
-            single = isinstance(outputs, torch.Tensor)
-            outputs = (outputs,) if single else tuple(outputs)
-            for output in outputs:
-                if output.shape[0] != len(points):
-                    raise ValueError(f"encode returned {output.shape[0]} items for {len(points)} clouds")
-            for offset, episode in enumerate(chunk):
-                window = slice(offset * self.num_waypoints, (offset + 1) * self.num_waypoints)
-                parts = tuple(output[window].detach() for output in outputs)
-                self._encoded[episode] = parts[0] if single else parts
-        flat = self.episode_indices[rows].reshape(-1).tolist()
-        first = self._encoded[flat[0]]
-        if isinstance(first, torch.Tensor):
-            return torch.stack([self._encoded[episode] for episode in flat]).reshape(*rows.shape, *first.shape)
-        return tuple(
-            torch.stack([self._encoded[episode][part] for episode in flat]).reshape(*rows.shape, *first[part].shape)
-            for part in range(len(first))
-        )
-
-    def clear_encoded(self) -> None:
-        self._encoded.clear()
-
-    @property
-    def num_encoded(self) -> int:
-        """Episodes whose encoder outputs are cached."""
-        return len(self._encoded)
 
     def _row(self, episode_index: int) -> int:
         row = self._row_of.get(int(episode_index))

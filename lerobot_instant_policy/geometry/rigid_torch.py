@@ -59,3 +59,20 @@ def compose(T_a_b: torch.Tensor, T_b_c: torch.Tensor) -> torch.Tensor:
 def transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """``T (..., 4, 4)`` applied to ``points (..., P, 3)``: ``R p + t`` per point."""
     return points @ T[..., :3, :3].transpose(-1, -2) + T[..., None, :3, 3]
+
+
+@full_precision()
+def fit_rigid(source: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The rigid transform that best maps points ``source (..., K, 3)`` onto ``target (..., K, 3)`` in the least-squares
+    sense (Kabsch / Arun: an SVD of the 3 × 3 cross-covariance, in float64, with the reflection removed).
+
+    Returns ``R (..., 3, 3)`` and ``t (..., 3)`` with ``target ≈ R source + t``, in ``source``'s dtype: the solution of
+    ``roma.rigid_points_registration`` (to float precision, tested), several times faster on small batches.
+    """
+    source_mean, target_mean = source.mean(dim=-2, keepdim=True), target.mean(dim=-2, keepdim=True)
+    covariance = ((target - target_mean).transpose(-1, -2) @ (source - source_mean)).double()
+    U, _, Vh = torch.linalg.svd(covariance)
+    reflection = torch.det(U @ Vh).sign()
+    U = torch.cat([U[..., :2], U[..., 2:] * reflection[..., None, None]], dim=-1)
+    R = (U @ Vh).to(source.dtype)
+    return R, (target_mean - source_mean @ R.transpose(-1, -2)).squeeze(-2)

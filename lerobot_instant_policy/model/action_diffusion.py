@@ -7,21 +7,21 @@ vector (axis-angle) divided by ``max_rotation · j`` (both clamped), and the gri
 
 The network does not predict noise: per gripper keypoint of an action it predicts the flow that moves the keypoint
 to its clean position, split into a translation part ``t⁰ − tᵏ`` and a rotation part ``R⁰ p − Rᵏ p`` (both in the
-E frame, normalised separately). An SVD fit (Arun / Kabsch, ``roma.rigid_points_registration``) turns the predicted
-clean keypoints into the SE(3) update of each action; its normalised tangent is the DDIM ``sample`` prediction.
+E frame, normalised separately). An SVD fit (Arun / Kabsch, :func:`~..geometry.rigid_torch.fit_rigid`, the solution of
+``roma.rigid_points_registration``) turns the predicted clean keypoints into the SE(3) update of each action; its
+normalised tangent is the DDIM ``sample`` prediction.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import roma
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
 
-from ..geometry.rigid_torch import compose, full_precision, make_rigid
+from ..geometry.rigid_torch import compose, fit_rigid, full_precision, make_rigid
 
 ACTION_DIM = 7  # translation 3, rotation vector 3, gripper 1
 FLOW_DIM = 6  # translation flow 3, rotation flow 3
@@ -42,16 +42,6 @@ def points_in_action_frames(points_ee: torch.Tensor, T_ee_actions: torch.Tensor)
     R = T_ee_actions[..., :3, :3]
     t = T_ee_actions[..., :3, 3]
     return (points_ee[:, None] - t[:, :, None]) @ R
-
-
-@dataclass
-class SamplingStep:
-    """One DDIM iteration: the timestep, its input sample, the clean prediction and the next (re-noised) sample."""
-
-    timestep: int
-    sample: torch.Tensor
-    predicted_clean: torch.Tensor
-    next_sample: torch.Tensor
 
 
 class ActionDiffusion:
@@ -158,7 +148,7 @@ class ActionDiffusion:
         noisy_keypoints = self.action_keypoints(T_noisy)
         translation = flows[..., :3] * self._per_step(self.translation_flow_scale, flows)[:, None, None]
         rotation = flows[..., 3:6] * self._per_step(self.rotation_flow_scale, flows)[:, None, None]
-        R_update, t_update = roma.rigid_points_registration(noisy_keypoints, noisy_keypoints + translation + rotation)
+        R_update, t_update = fit_rigid(noisy_keypoints, noisy_keypoints + translation + rotation)
         return compose(make_rigid(R_update, t_update), T_noisy)
 
     def sample(
@@ -169,7 +159,6 @@ class ActionDiffusion:
         generator: torch.Generator | None = None,
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
-        trajectory: list[SamplingStep] | None = None,
     ) -> torch.Tensor:
         """DDIM from Gaussian noise to a clean diffusion variable ``(B, T, 7)``.
 
@@ -177,7 +166,6 @@ class ActionDiffusion:
             predict: ``(T_ee_actions (B, T, 4, 4), gripper (B, T) in [−1, 1], timesteps (B,)) → (B, T, K, 7)``, the
                 network's normalised flows and gripper predictions at each action keypoint.
             num_inference_steps: K, between 1 and ``num_train_timesteps``.
-            trajectory: when a list is given, every iteration is appended to it as a :class:`SamplingStep`.
         """
         if not 1 <= num_inference_steps <= self.num_train_timesteps:
             raise ValueError(
@@ -194,8 +182,5 @@ class ActionDiffusion:
             T_clean = self.predicted_clean_actions(T_noisy, prediction[..., :FLOW_DIM])
             gripper_clean = prediction[..., FLOW_DIM].mean(dim=-1)
             clean = torch.cat([self.normalize_poses(T_clean), gripper_clean.clamp(-1.0, 1.0)[..., None]], dim=-1)
-            next_sample = self.inference_scheduler.step(clean, timestep, sample, eta=0.0).prev_sample.clamp(-1.0, 1.0)
-            if trajectory is not None:
-                trajectory.append(SamplingStep(timestep, sample, clean, next_sample))
-            sample = next_sample
+            sample = self.inference_scheduler.step(clean, timestep, sample, eta=0.0).prev_sample.clamp(-1.0, 1.0)
         return sample

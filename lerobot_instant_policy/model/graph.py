@@ -215,34 +215,37 @@ def dense_action_masks(horizon: int, num_keypoints: int, device: torch.device) -
 
 def dense_position_attr(src_positions: torch.Tensor, dst_positions: torch.Tensor, num_frequencies: int) -> torch.Tensor:
     """:func:`position_attr` of every node pair in the dense layout: ``(G, S, 3)``, ``(G, D, 3)`` →
-    ``(G, S, D, ·)``, ``enc(p_dst − p_src)`` at ``[:, src, dst]``."""
-    return sinusoidal_encoding(dst_positions[:, None, :, :] - src_positions[:, :, None, :], num_frequencies)
+    ``(G, S, D, ·)``, ``enc(p_dst − p_src)`` at ``[:, src, dst]``, destination-major in memory (the layout
+    :func:`~.dense_attention.dense_attention` reads)."""
+    offsets = dst_positions[:, :, None, :] - src_positions[:, None, :, :]  # (G, D, S, 3)
+    return sinusoidal_encoding(offsets, num_frequencies).transpose(1, 2)
 
 
 @full_precision()
 def dense_transform_attr(
     src_frames: torch.Tensor, dst_frames: torch.Tensor, keypoints: torch.Tensor, num_frequencies: int
 ) -> torch.Tensor:
-    """:func:`transform_attr` of every keypoint pair between frames, in the dense layout of σ and ψ's fast path.
+    """:func:`transform_attr` of every keypoint pair between frames, in the dense layout of ψ's fast path, once per
+    source frame: the attribute does not depend on the source keypoint.
 
     Args:
         src_frames: ``(B, F_src, 4, 4)`` and ``dst_frames``: ``(B, F_dst, 4, 4)``, poses in a common frame per row.
         keypoints: ``(K, 3)`` gripper keypoints.
 
     Returns:
-        ``(B, F_src · K, F_dst · K, 2 E)``: the attribute of the edge from keypoint ``k_s`` of source frame ``i`` to
-        keypoint ``k_d`` of destination frame ``j`` at ``[:, i · K + k_s, j · K + k_d]`` (it depends on ``i``, ``j``,
-        ``k_d`` only), as :func:`transform_attr` gives it on the same edge.
+        ``(B, F_src, F_dst · K, 2 E)``: the attribute of the edges from every keypoint of source frame ``i`` to
+        keypoint ``k_d`` of destination frame ``j`` at ``[:, i, j · K + k_d]``, as :func:`transform_attr` gives it on
+        each of those edges; shared by the ``K`` source nodes of frame ``i`` (:func:`~.dense_attention.dense_attention`),
+        destination-major in memory (the layout it reads).
     """
     batch, num_src, num_dst, num_keypoints = src_frames.shape[0], src_frames.shape[1], dst_frames.shape[1], len(keypoints)
-    R_src_t = src_frames[:, :, None, :3, :3].transpose(-1, -2)  # (B, F_src, 1, 3, 3)
-    R = R_src_t @ dst_frames[:, None, :, :3, :3]  # (B, F_src, F_dst, 3, 3)
-    t = (R_src_t @ (dst_frames[:, None, :, :3, 3] - src_frames[:, :, None, :3, 3])[..., None]).squeeze(-1)
-    displacement = keypoints @ R.transpose(-1, -2) - keypoints  # (B, F_src, F_dst, K, 3): R k − k
-    translation = sinusoidal_encoding(t, num_frequencies)[:, :, :, None].expand(-1, -1, -1, num_keypoints, -1)
+    R_src_t = src_frames[:, None, :, :3, :3].transpose(-1, -2)  # (B, 1, F_src, 3, 3)
+    R = R_src_t @ dst_frames[:, :, None, :3, :3]  # (B, F_dst, F_src, 3, 3)
+    t = (R_src_t @ (dst_frames[:, :, None, :3, 3] - src_frames[:, None, :, :3, 3])[..., None]).squeeze(-1)
+    displacement = (keypoints @ R.transpose(-1, -2) - keypoints).transpose(2, 3)  # (B, F_dst, K, F_src, 3): R k − k
+    translation = sinusoidal_encoding(t, num_frequencies)[:, :, None].expand(-1, -1, num_keypoints, -1, -1)
     attr = torch.cat([translation, sinusoidal_encoding(displacement, num_frequencies)], dim=-1)
-    attr = attr[:, :, None].expand(-1, -1, num_keypoints, -1, -1, -1)  # the source keypoint does not matter
-    return attr.reshape(batch, num_src * num_keypoints, num_dst * num_keypoints, attr.shape[-1])
+    return attr.view(batch, num_dst * num_keypoints, num_src, attr.shape[-1]).transpose(1, 2)
 
 
 def keypoint_offset_attr(store, keypoints: torch.Tensor, num_frequencies: int) -> torch.Tensor:

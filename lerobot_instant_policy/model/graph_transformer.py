@@ -7,7 +7,9 @@ a layer keep their features.
 
 ``forward_dense`` runs the same layers on graphs whose every edge type joins all source nodes of a graph to all its
 destination nodes (σ's local graphs), in a dense batched layout (:mod:`.dense_attention`): the same weights and
-outputs, without PyG's scatter operations.
+outputs, without PyG's scatter operations. There, all the convs' projections that read one node type (query and skip
+where it is the destination, key and value where it is the source) are one matrix product with their weights stacked,
+done once per row when every graph holds the same nodes (an input expanded along the graphs).
 """
 
 from __future__ import annotations
@@ -19,8 +21,21 @@ import torch
 from torch import nn
 from torch_geometric.nn import HeteroConv, TransformerConv
 
-from .dense_attention import dense_transformer_conv
+from .dense_attention import dense_attention
 from .graph import EdgeType
+
+Projection = tuple[EdgeType, str]  # (edge type, "query" | "key" | "value" | "skip"): a conv's ``lin_<role>``
+
+
+def projection_plan(edge_types: Iterable[EdgeType]) -> dict[str, list[Projection]]:
+    """The projections that read each node type: key and value of the edge types it sends, query and skip of those it
+    receives."""
+    plan: dict[str, list[Projection]] = {}
+    for edge_type in edge_types:
+        source, _, destination = edge_type
+        plan.setdefault(source, []).extend([(edge_type, "key"), (edge_type, "value")])
+        plan.setdefault(destination, []).extend([(edge_type, "query"), (edge_type, "skip")])
+    return plan
 
 
 class HeteroGraphTransformerLayer(nn.Module):
@@ -51,6 +66,7 @@ class HeteroGraphTransformerLayer(nn.Module):
             }
         )
         self.mlp_norm = nn.ModuleDict({node: nn.LayerNorm(hidden_dim) for node in destinations})
+        self.projections = projection_plan(edge_dims)
 
     def forward(
         self,
@@ -68,14 +84,33 @@ class HeteroGraphTransformerLayer(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """The layer on G complete graphs: ``x_dict`` node type → ``(G, n, H)``, ``edge_attr_dict`` edge type →
         ``(G, n_src, n_dst, E)``, ``mask_dict`` edge type → ``(n_src, n_dst)`` bool or ``None`` (all edges)."""
+        projected = self._project(x_dict)
         attended: dict[str, torch.Tensor] = {}
         for edge_type, conv in self.attention.convs.items():
-            source, _, destination = edge_type
-            update = dense_transformer_conv(
-                conv, x_dict[source], x_dict[destination], edge_attr_dict[edge_type], mask_dict[edge_type]
-            )
+            destination = edge_type[2]
+            update = dense_attention(
+                projected[edge_type, "query"], projected[edge_type, "key"], projected[edge_type, "value"],
+                conv.lin_edge.weight, edge_attr_dict[edge_type], conv.heads, mask_dict[edge_type],
+            ) + projected[edge_type, "skip"]
             attended[destination] = attended[destination] + update if destination in attended else update
         return self._update(x_dict, attended)
+
+    def _project(self, x_dict: dict[str, torch.Tensor]) -> dict[Projection, torch.Tensor]:
+        """Every projection of :attr:`projections`, one matrix product per node type: ``x_dict`` node type →
+        ``(G, n, H)`` gives ``(edge type, role)`` → ``(G, n, H)``. A node type expanded along the graphs (stride 0) is
+        projected once and expanded."""
+        projected: dict[Projection, torch.Tensor] = {}
+        for node, plan in self.projections.items():
+            linears = [getattr(self.attention.convs[edge_type], f"lin_{role}") for edge_type, role in plan]
+            x = x_dict[node]
+            shared = x.stride(0) == 0
+            out = nn.functional.linear(
+                x[:1] if shared else x, torch.cat([linear.weight for linear in linears]),
+                torch.cat([linear.bias for linear in linears]),
+            )
+            chunks = out.expand(len(x), -1, -1).split([linear.out_channels for linear in linears], dim=-1)
+            projected.update(zip(plan, chunks))
+        return projected
 
     def _update(self, x_dict: dict[str, torch.Tensor], attended: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         out = dict(x_dict)
@@ -130,7 +165,18 @@ class HeteroGraphTransformer(nn.Module):
         edge_attr_dict: dict[EdgeType, torch.Tensor],
         mask_dict: Mapping[EdgeType, torch.Tensor | None],
     ) -> dict[str, torch.Tensor]:
-        """:meth:`forward` on G complete graphs in the dense layout of :meth:`HeteroGraphTransformerLayer.forward_dense`."""
+        """:meth:`forward` on G complete graphs in the dense layout of :meth:`HeteroGraphTransformerLayer.forward_dense`.
+        The attributes are laid out destination-major in memory (:mod:`.dense_attention`) and, under autocast, cast to
+        its dtype once for every layer instead of at each of their matrix products (the same values)."""
+        edge_attr_dict = {edge_type: _dense_attr_layout(attr) for edge_type, attr in edge_attr_dict.items()}
         for layer in self.layers:
             x_dict = layer.forward_dense(x_dict, edge_attr_dict, mask_dict)
         return {node: x_dict[node] for node in self.output_node_types}
+
+
+def _dense_attr_layout(attr: torch.Tensor) -> torch.Tensor:
+    """``attr (G, S, D, E)`` destination-major in memory, in autocast's dtype where autocast is on (its matrix
+    products would cast it there)."""
+    if torch.is_autocast_enabled(attr.device.type) and attr.is_floating_point():
+        attr = attr.to(torch.get_autocast_dtype(attr.device.type))
+    return attr.transpose(1, 2).contiguous().transpose(1, 2)

@@ -3,11 +3,14 @@
 Frames: ``W`` is a world frame (each demonstration and the live scene may have their own); ``E`` is the end-effector
 frame of a time step; ``A`` an action frame. Inputs to the network:
 
-- demonstrations: ``demo_points_world (B, N, L, P, 3)``, ``demo_T_world_ee (B, N, L, 4, 4)``, ``demo_gripper
-  (B, N, L)`` (1 open, 0 closed);
+- demonstrations (:class:`DemoTensors`): ``T_world_ee (B, N, L, 4, 4)``, ``gripper_open (B, N, L)`` (1 open,
+  0 closed) and the frozen encoder's scene nodes of each waypoint's cloud in its own EE frame;
 - the current observation: ``points_world (B, P, 3)``, ``T_world_ee (B, 4, 4)``, ``gripper (B,)`` (1 open, 0 closed);
 - training targets: ``T_ee_actions (B, T, 4, 4)``, the action poses ``T_EA`` in the current EE frame, and
   ``action_gripper (B, T)`` (1 open, 0 closed).
+
+Sizes: ``N`` demonstrations of ``L`` waypoints, ``T`` predicted actions, ``K`` DDIM steps, ``G`` gripper keypoint
+nodes per gripper, ``M`` scene nodes of ``D`` features per cloud of ``P`` points, ``H`` hidden features.
 
 Every cloud enters the encoder in its own EE frame (``T_EW · P``); only relative transforms between frames of one
 world enter the graph, so the predicted relative actions do not depend on where a world is.
@@ -20,19 +23,17 @@ of the K DDIM iterations.
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
 
-from ..config_io import config_from_dict
-from ..geometry.gripper import GRIPPER_KEYPOINTS
 from ..geometry.rigid_torch import full_precision, invert_rigid, transform_points
-from .action_diffusion import FLOW_DIM, LOSS_WEIGHTINGS, ActionDiffusion, points_in_action_frames
+from .action_diffusion import FLOW_DIM, ActionDiffusion, points_in_action_frames
 from .encodings import encoding_dim, sinusoidal_encoding
-from .geometry_encoder import GeometryEncoder, GeometryEncoderConfig, encoder_preset
+from .geometry_encoder import GeometryEncoder
 from .graph import (
     ACTION,
     ACTION_TO_ACTION,
@@ -62,99 +63,50 @@ from .graph import (
 )
 from .graph_transformer import HeteroGraphTransformer
 
+if TYPE_CHECKING:  # the policy's config is handed in as it is (LeRobot's pattern); only its fields are read here
+    from ..configuration_instant_policy import InstantPolicyConfig
 
-@dataclass(frozen=True)
-class InstantPolicyNetworkConfig:
-    """Sizes of the network and of its diffusion; JSON-serialisable with :meth:`to_dict` / :meth:`from_dict`.
 
-    ``hidden_dim``, ``num_heads``, ``num_layers`` and ``mlp_ratio`` apply to each of σ, φ and ψ; ``local_layers``
-    (σ), ``context_layers`` (φ) and ``action_layers`` (ψ) override ``num_layers`` per stage (``None``: ``num_layers``).
-    ``reencode_action_clouds``: True re-encodes the live cloud in every action frame at every denoising step (the
-    paper's choice); False moves the current scene nodes rigidly into the action frames (no encoder in the loop).
-    ``dense_attention``: run σ (local graphs) and ψ (current → actions) in the dense layout of
-    :meth:`HeteroGraphTransformer.forward_dense` (same weights and outputs as the PyG layers, faster); False runs the
-    PyG reference layers.
-    ``action_scene_graph``: σ runs on every action's local graph (the scene seen from the noisy action, the paper's
-    graph); False gives the action gripper nodes only their keypoint, gripper and timestep embeddings, so they see
-    the scene through the current nodes alone (an ablation of the information paths).
-    ``flow_loss_weighting``: how the flow losses weigh diffusion timesteps (``uniform``, the paper's; ``noise``:
-    by the noise variance, see :meth:`ActionDiffusion.loss_weights`).
+# N and L the context graph is built for (any N and L in these ranges work without retraining).
+SUPPORTED_DEMOS = (1, 8)
+SUPPORTED_WAYPOINTS = (2, 32)
+
+
+@dataclass
+class DemoTensors:
+    """The demonstrations as the network reads them, ``N`` of them reduced to ``L`` waypoints each, per batch row.
+
+    Attributes:
+        T_world_ee: ``(B, N, L, 4, 4)`` the waypoints' EE poses in their demonstration's world frame.
+        gripper_open: ``(B, N, L)`` their gripper states, 1 open, 0 closed.
+        scene_positions: ``(B, N, L, M, 3)`` the frozen encoder's scene nodes of each waypoint's cloud, in the
+            waypoint's own EE frame (:meth:`InstantPolicyNetwork.encode_observation`).
+        scene_features: ``(B, N, L, M, D)`` their features.
     """
 
-    hidden_dim: int = 128
-    num_heads: int = 4
-    num_layers: int = 2
-    local_layers: int | None = None
-    context_layers: int | None = None
-    action_layers: int | None = None
-    mlp_ratio: int = 4
-    encoder: GeometryEncoderConfig = field(default_factory=lambda: encoder_preset("small"))
-    num_points: int = 2048
-    prediction_horizon: int = 8
-    num_train_timesteps: int = 100
-    num_inference_steps: int = 4
-    max_translation: float = 0.01
-    max_rotation_deg: float = 3.0
-    gripper_keypoints: tuple[tuple[float, float, float], ...] = GRIPPER_KEYPOINTS
-    num_frequencies: int = 10
-    reencode_action_clouds: bool = True
-    gripper_loss_weight: float = 0.1
-    dense_attention: bool = True
-    action_scene_graph: bool = True
-    flow_loss_weighting: str = "uniform"
-    max_num_demos: int = 8
-    max_demo_length: int = 32
+    T_world_ee: torch.Tensor
+    gripper_open: torch.Tensor
+    scene_positions: torch.Tensor
+    scene_features: torch.Tensor
 
-    def __post_init__(self):
-        if isinstance(self.encoder, dict):
-            object.__setattr__(self, "encoder", GeometryEncoderConfig.from_dict(self.encoder))
-        object.__setattr__(self, "gripper_keypoints", tuple(tuple(float(c) for c in k) for k in self.gripper_keypoints))
-        for name in ("local_layers", "context_layers", "action_layers"):
-            if getattr(self, name) is None:
-                object.__setattr__(self, name, self.num_layers)
-        positive = ("hidden_dim", "num_heads", "num_layers", "local_layers", "context_layers", "action_layers",
-                    "mlp_ratio", "prediction_horizon", "num_train_timesteps", "num_frequencies", "max_num_demos",
-                    "max_demo_length")
-        for name in positive:
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if self.hidden_dim % self.num_heads:
-            raise ValueError(f"hidden_dim {self.hidden_dim} must be divisible by num_heads {self.num_heads}")
-        if not 1 <= self.num_inference_steps <= self.num_train_timesteps:
-            raise ValueError(f"num_inference_steps must be in 1…{self.num_train_timesteps}, got {self.num_inference_steps}")
-        if self.num_points < self.encoder.num_centroids[0]:
-            raise ValueError(f"num_points {self.num_points} is below the encoder's {self.encoder.num_centroids[0]} centroids")
-        if len(self.gripper_keypoints) < 3 or any(len(k) != 3 for k in self.gripper_keypoints):
-            raise ValueError("gripper_keypoints needs at least 3 points of 3 coordinates (an SE(3) fit needs 3)")
-        if self.max_translation <= 0 or self.max_rotation_deg <= 0:
-            raise ValueError("max_translation and max_rotation_deg must be positive")
-        if self.flow_loss_weighting not in LOSS_WEIGHTINGS:
-            raise ValueError(f"flow_loss_weighting must be one of {list(LOSS_WEIGHTINGS)}, got {self.flow_loss_weighting!r}")
-        if self.gripper_loss_weight < 0:
-            raise ValueError(f"gripper_loss_weight must be non-negative, got {self.gripper_loss_weight}")
+    @property
+    def batch_size(self) -> int:
+        return self.T_world_ee.shape[0]
 
-    def to_dict(self) -> dict:
-        values = dataclasses.asdict(self)
-        values["encoder"] = self.encoder.to_dict()
-        values["gripper_keypoints"] = [list(k) for k in self.gripper_keypoints]
-        return values
+    @property
+    def num_demos(self) -> int:
+        return self.T_world_ee.shape[1]
 
-    @classmethod
-    def from_dict(cls, values: dict) -> InstantPolicyNetworkConfig:
-        return config_from_dict(cls, values)
+    @property
+    def num_waypoints(self) -> int:
+        return self.T_world_ee.shape[2]
 
-
-NETWORK_PRESETS: dict[str, dict] = {
-    "small": dict(hidden_dim=128, num_heads=4, mlp_ratio=4, encoder=encoder_preset("small")),
-    "paper": dict(hidden_dim=1024, num_heads=16, mlp_ratio=4, encoder=encoder_preset("paper")),
-}
-
-
-def network_preset(name: str, **overrides) -> InstantPolicyNetworkConfig:
-    """``small`` (hidden 128, 4 heads, CPU) or ``paper`` (hidden 1024, 16 heads × 64), with field overrides."""
-    if name not in NETWORK_PRESETS:
-        raise ValueError(f"unknown network preset {name!r}; known: {sorted(NETWORK_PRESETS)}")
-    return InstantPolicyNetworkConfig(**{**NETWORK_PRESETS[name], **overrides})
+    def expand(self, batch_size: int) -> DemoTensors:
+        """The same demonstrations for ``batch_size`` rows: a view of a batch of one (one task's context)."""
+        if self.batch_size != 1:
+            raise ValueError(f"only a batch of one demonstration set can be expanded, got {self.batch_size}")
+        return DemoTensors(*(value.expand(batch_size, *value.shape[1:]) for value in (
+            self.T_world_ee, self.gripper_open, self.scene_positions, self.scene_features)))
 
 
 @dataclass
@@ -162,7 +114,7 @@ class InstantPolicyContext:
     """What one control step computes once and every denoising iteration reuses.
 
     Attributes:
-        current_gripper_features: ``(B, K, H)`` φ's output at the current gripper nodes (the paper's bottleneck).
+        current_gripper_features: ``(B, G, H)`` φ's output at the current gripper nodes (the paper's bottleneck).
         points_ee: ``(B, P, 3)`` the live cloud in the current EE frame.
         scene_positions_ee: ``(B, M, 3)`` the current scene nodes in the EE frame.
         scene_features: ``(B, M, D)`` their encoder features.
@@ -183,21 +135,31 @@ def _head(hidden_dim: int, out_dim: int) -> nn.Sequential:
 
 
 class InstantPolicyNetwork(nn.Module):
-    """Graph-diffusion network of Instant Policy. The geometry encoder is frozen (no gradients, always eval)."""
+    """Graph-diffusion network of Instant Policy. The geometry encoder is frozen (no gradients, always eval); it is
+    initialised randomly here, and the policy loads its pretrained weights (or a checkpoint's).
 
-    def __init__(self, config: InstantPolicyNetworkConfig | None = None):
+    Args:
+        config: the policy's :class:`~lerobot_instant_policy.configuration_instant_policy.InstantPolicyConfig`, read
+            for the sizes (``hidden_dim``, ``num_heads``, ``mlp_ratio``, ``local_layers``, ``context_layers``,
+            ``action_layers``, ``encoder_config``, ``num_points``, ``horizon``, ``gripper_keypoints``,
+            ``num_frequencies``), the diffusion (``diffusion_train_steps``, ``inference_steps``, ``max_translation``,
+            ``max_rotation_deg``, ``flow_loss_weighting``, ``gripper_loss_weight``) and the graph variants
+            (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``).
+    """
+
+    def __init__(self, config: InstantPolicyConfig):
         super().__init__()
-        self.config = config = config or InstantPolicyNetworkConfig()
+        self.config = config
         hidden, num_keypoints = config.hidden_dim, len(config.gripper_keypoints)
-        self.geometry_encoder = GeometryEncoder(config.encoder).requires_grad_(False)
+        self.geometry_encoder = GeometryEncoder(config.encoder_config).requires_grad_(False)
         self.register_buffer(
             "gripper_keypoints", torch.tensor(config.gripper_keypoints, dtype=torch.float32), persistent=False
         )
-        self.scene_projection = nn.Linear(config.encoder.feature_dim, hidden)
+        self.scene_projection = nn.Linear(config.encoder_config.feature_dim, hidden)
         # Observation (demo and current) gripper nodes and action gripper nodes have separate embeddings, one per
         # keypoint and, for actions, per action step: action step 0 never shares an embedding with the current frame.
         self.observation_keypoint_embedding = nn.Embedding(num_keypoints, hidden)
-        self.action_keypoint_embedding = nn.Embedding(config.prediction_horizon * num_keypoints, hidden)
+        self.action_keypoint_embedding = nn.Embedding(config.horizon * num_keypoints, hidden)
         self.gripper_state_embedding = nn.Embedding(2, hidden)
         self.action_gripper_embedding = nn.Linear(1, hidden)
         self.timestep_embedding = nn.Sequential(
@@ -217,9 +179,9 @@ class InstantPolicyNetwork(nn.Module):
         self.rotation_head = _head(hidden, 3)
         self.gripper_head = _head(hidden, 1)
         self.diffusion = ActionDiffusion(
-            config.prediction_horizon,
+            config.horizon,
             self.gripper_keypoints,
-            config.num_train_timesteps,
+            config.diffusion_train_steps,
             config.max_translation,
             math.radians(config.max_rotation_deg),
         )
@@ -259,11 +221,11 @@ class InstantPolicyNetwork(nn.Module):
             raise ValueError(f"{name} contains NaN or inf values")
 
     def check_demo_size(self, num_demos: int, demo_length: int) -> None:
-        """Raise ``ValueError`` unless ``1 ≤ N ≤ max_num_demos`` and ``1 ≤ L ≤ max_demo_length``."""
-        if not 1 <= num_demos <= self.config.max_num_demos:
-            raise ValueError(f"number of demonstrations N={num_demos} is outside 1…{self.config.max_num_demos}")
-        if not 1 <= demo_length <= self.config.max_demo_length:
-            raise ValueError(f"demonstration length L={demo_length} is outside 1…{self.config.max_demo_length}")
+        """Raise ``ValueError`` unless N and L lie in ``SUPPORTED_DEMOS`` and ``SUPPORTED_WAYPOINTS``."""
+        for name, value, (low, high) in (("number of demonstrations N", num_demos, SUPPORTED_DEMOS),
+                                         ("number of waypoints L", demo_length, SUPPORTED_WAYPOINTS)):
+            if not low <= value <= high:
+                raise ValueError(f"{name}={value} is outside the supported {low}…{high}")
 
     # ------------------------------------------------------------------ node features
     @full_precision()
@@ -282,22 +244,22 @@ class InstantPolicyNetwork(nn.Module):
         return self.encode_clouds(transform_points(invert_rigid(T_world_ee), points_world))
 
     def observation_gripper_features(self, gripper_open: torch.Tensor) -> torch.Tensor:
-        """Gripper-node features of observed frames: ``gripper_open (...)`` in {0, 1} → ``(..., K, H)``."""
+        """Gripper-node features of observed frames: ``gripper_open (...)`` in {0, 1} → ``(..., G, H)``."""
         state = self.gripper_state_embedding((gripper_open > 0.5).long())
         return self.observation_keypoint_embedding.weight + state[..., None, :]
 
     def action_gripper_features(self, gripper: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
-        """Gripper-node features of actions: ``gripper (B, T)`` in [−1, 1], ``timesteps (B,)`` → ``(B, T, K, H)``."""
-        keypoint = self.action_keypoint_embedding.weight.view(self.config.prediction_horizon, self.num_keypoints, -1)
+        """Gripper-node features of actions: ``gripper (B, T)`` in [−1, 1], ``timesteps (B,)`` → ``(B, T, G, H)``."""
+        keypoint = self.action_keypoint_embedding.weight.view(self.config.horizon, self.num_keypoints, -1)
         value = self.action_gripper_embedding(gripper[..., None].to(keypoint.dtype))
-        phase = (timesteps.to(keypoint.dtype) / self.config.num_train_timesteps)[:, None]
+        phase = (timesteps.to(keypoint.dtype) / self.config.diffusion_train_steps)[:, None]
         timestep = self.timestep_embedding(sinusoidal_encoding(phase, self.config.num_frequencies))
         return keypoint + value[:, :, None] + timestep[:, None, None]
 
     def _local_gripper_features(
         self, scene_positions: torch.Tensor, scene_features: torch.Tensor, gripper_features: torch.Tensor
     ) -> torch.Tensor:
-        """σ on G local graphs: scene ``(G, M, 3)``, ``(G, M, D)``, gripper ``(G, K, H)`` → gripper ``(G, K, H)``."""
+        """σ on R local graphs: scene ``(R, M, 3)``, ``(R, M, D)``, gripper ``(R, G, H)`` → gripper ``(R, G, H)``."""
         if self.config.dense_attention:
             return self._local_gripper_features_dense(scene_positions, scene_features, gripper_features)
         num_graphs, num_scene = scene_positions.shape[:2]
@@ -334,45 +296,46 @@ class InstantPolicyNetwork(nn.Module):
             GRIPPER_TO_GRIPPER: dense_position_attr(gripper_positions, gripper_positions, frequencies),
         }
         masks = dense_local_masks(scene_positions.shape[1], self.num_keypoints, scene_positions.device)
-        x = {SCENE: self.scene_projection(scene_features), GRIPPER: gripper_features}
+        x = {SCENE: self._scene_nodes(scene_features), GRIPPER: gripper_features}
         return self.local_network.forward_dense(x, edge_attr, masks)[GRIPPER]
 
-    # ------------------------------------------------------------------ context (once per control step)
-    def encode_demo_geometry(
-        self, demo_points_world: torch.Tensor, demo_T_world_ee: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Encode demo clouds in their EE frames: ``(B, N, L, P, 3)``, ``(B, N, L, 4, 4)`` → scene node positions
-        ``(B, N, L, M, 3)`` (EE frame of each waypoint) and features ``(B, N, L, M, D)``. Cacheable per demo set."""
-        batch, num_demos, demo_length = demo_points_world.shape[:3]
-        self.check_demo_size(num_demos, demo_length)
-        self._check_cloud("demo_points_world", demo_points_world, (batch, num_demos, demo_length))
-        self._check_tensor("demo_T_world_ee", demo_T_world_ee, (batch, num_demos, demo_length, 4, 4))
-        return self.encode_clouds(transform_points(invert_rigid(demo_T_world_ee), demo_points_world))
+    def _scene_nodes(self, scene_features: torch.Tensor) -> torch.Tensor:
+        """``scene_projection`` of ``(R, M, D)`` → ``(R, M, H)``. Features expanded along the graphs (one scene seen
+        from the T action frames at batch 1) are projected once and stay expanded, so σ projects them once too."""
+        if scene_features.stride(0) == 0:
+            return self.scene_projection(scene_features[:1]).expand(len(scene_features), -1, -1)
+        return self.scene_projection(scene_features)
 
-    def encode_demo_waypoints(
-        self, demo_geometry: tuple[torch.Tensor, torch.Tensor], demo_gripper: torch.Tensor
-    ) -> torch.Tensor:
-        """σ on the demonstrations' local graphs alone: scene nodes (positions ``(B, N, L, M, 3)`` and features
-        ``(B, N, L, M, D)``, from :meth:`encode_demo_geometry` or a cache) and gripper states ``(B, N, L)`` → the demo
-        gripper nodes' features ``(B, N, L, K, H)``. It does not depend on the live observation, so at inference it
-        is computed once per task (and weights) and handed to :meth:`encode_context` at every control step."""
-        if demo_gripper.ndim != 3:
-            raise ValueError(f"demo_gripper must have shape (B, N, L), got {tuple(demo_gripper.shape)}")
-        batch, num_demos, demo_length = demo_gripper.shape
-        self.check_demo_size(num_demos, demo_length)
-        self._check_scene_nodes("demo", *demo_geometry, (batch, num_demos, demo_length))
-        return self._observation_gripper_features(*demo_geometry, demo_gripper, leading=(batch, num_demos, demo_length))
+    # ------------------------------------------------------------------ context (once per control step)
+    def encode_demo_waypoints(self, demos: DemoTensors) -> torch.Tensor:
+        """σ on the demonstrations' local graphs alone → the demo gripper nodes' features ``(B, N, L, G, H)``. It
+        does not depend on the live observation, so at inference it is computed once per task (and weights) and
+        handed to :meth:`encode_context` at every control step."""
+        self._check_demos(demos)
+        leading = (demos.batch_size, demos.num_demos, demos.num_waypoints)
+        return self._observation_gripper_features(
+            demos.scene_positions, demos.scene_features, demos.gripper_open, leading=leading
+        )
+
+    def _check_demos(self, demos: DemoTensors) -> None:
+        if demos.T_world_ee.ndim != 5:
+            raise ValueError(f"demo T_world_ee must have shape (B, N, L, 4, 4), got {tuple(demos.T_world_ee.shape)}")
+        leading = (demos.batch_size, demos.num_demos, demos.num_waypoints)
+        self.check_demo_size(demos.num_demos, demos.num_waypoints)
+        self._check_tensor("demo T_world_ee", demos.T_world_ee, (*leading, 4, 4))
+        self._check_tensor("demo gripper_open", demos.gripper_open, leading)
+        self._check_scene_nodes("demo", demos.scene_positions, demos.scene_features, leading)
 
     def _check_scene_nodes(self, name: str, positions: torch.Tensor, features: torch.Tensor, leading: tuple) -> None:
-        num_scene = self.config.encoder.num_nodes
+        num_scene = self.config.encoder_config.num_nodes
         self._check_tensor(f"{name} scene positions", positions, (*leading, num_scene, 3))
-        self._check_tensor(f"{name} scene features", features, (*leading, num_scene, self.config.encoder.feature_dim))
+        self._check_tensor(f"{name} scene features", features, (*leading, num_scene, self.config.encoder_config.feature_dim))
 
     def _observation_gripper_features(
         self, positions: torch.Tensor, features: torch.Tensor, gripper_open: torch.Tensor, leading: tuple[int, ...]
     ) -> torch.Tensor:
         """σ on observed frames ``leading``: scene nodes ``(*leading, M, 3)``, ``(*leading, M, D)`` and gripper states
-        ``leading`` → gripper features ``(*leading, K, H)``."""
+        ``leading`` → gripper features ``(*leading, G, H)``."""
         out = self._local_gripper_features(
             positions.flatten(0, len(leading) - 1), features.flatten(0, len(leading) - 1),
             self.observation_gripper_features(gripper_open).flatten(0, len(leading) - 1),
@@ -381,41 +344,29 @@ class InstantPolicyNetwork(nn.Module):
 
     def encode_context(
         self,
-        demo_points_world: torch.Tensor | None,
-        demo_T_world_ee: torch.Tensor,
-        demo_gripper: torch.Tensor,
+        demos: DemoTensors,
         points_world: torch.Tensor,
         T_world_ee: torch.Tensor,
         gripper: torch.Tensor,
-        demo_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
         scene_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
         demo_waypoint_features: torch.Tensor | None = None,
     ) -> InstantPolicyContext:
         """Run everything that does not depend on the noisy actions: encoder, σ on demo and current graphs, φ.
 
         Args:
-            demo_points_world: ``(B, N, L, P, 3)`` demo clouds, each in its demo's world frame; may be None when
-                ``demo_geometry`` (from :meth:`encode_demo_geometry`) is given.
-            demo_T_world_ee: ``(B, N, L, 4, 4)`` demo EE poses in their world frames.
-            demo_gripper: ``(B, N, L)`` demo gripper states, 1 open, 0 closed.
+            demos: the demonstrations of every row (:class:`DemoTensors`, batch ``B``).
             points_world: ``(B, P, 3)`` the live cloud in the world frame.
             T_world_ee: ``(B, 4, 4)`` the current EE pose in the world frame.
             gripper: ``(B,)`` the current gripper state, 1 open, 0 closed.
-            demo_geometry: the demo waypoints' scene nodes, each in its EE frame: positions ``(B, N, L, M, 3)`` and
-                features ``(B, N, L, M, D)``, e.g. from :meth:`encode_demo_geometry` or a cache.
             scene_geometry: the live cloud's scene nodes in the current EE frame, positions ``(B, M, 3)`` and
-                features ``(B, M, D)`` as :meth:`encode_observation` gives them (e.g. from a cache); None encodes
+                features ``(B, M, D)`` as :meth:`encode_observation` gives them (a frame-encoding cache); None encodes
                 ``points_world``.
-            demo_waypoint_features: σ's output on the demonstrations' local graphs, ``(B, N, L, K, H)`` from
+            demo_waypoint_features: σ's output on the demonstrations' local graphs, ``(B, N, L, G, H)`` from
                 :meth:`encode_demo_waypoints` with the current weights (a policy computes it once per task); None runs
                 σ on them here, in one batch with the current frame (training).
         """
-        if demo_T_world_ee.ndim != 5:
-            raise ValueError(f"demo_T_world_ee must have shape (B, N, L, 4, 4), got {tuple(demo_T_world_ee.shape)}")
-        batch, num_demos, demo_length = demo_T_world_ee.shape[:3]
-        self.check_demo_size(num_demos, demo_length)
-        self._check_tensor("demo_T_world_ee", demo_T_world_ee, (batch, num_demos, demo_length, 4, 4))
-        self._check_tensor("demo_gripper", demo_gripper, (batch, num_demos, demo_length))
+        self._check_demos(demos)
+        batch, num_demos, demo_length = demos.batch_size, demos.num_demos, demos.num_waypoints
         self._check_cloud("points_world", points_world, (batch,))
         self._check_tensor("T_world_ee", T_world_ee, (batch, 4, 4))
         self._check_tensor("gripper", gripper, (batch,))
@@ -425,17 +376,11 @@ class InstantPolicyNetwork(nn.Module):
         scene_positions, scene_features = scene_geometry
         self._check_scene_nodes("live", scene_positions, scene_features, (batch,))
         if demo_waypoint_features is None:
-            if demo_geometry is None:
-                if demo_points_world is None:
-                    raise ValueError("give demo_points_world, demo_geometry or demo_waypoint_features")
-                demo_geometry = self.encode_demo_geometry(demo_points_world, demo_T_world_ee)
-            self._check_scene_nodes("demo", *demo_geometry, (batch, num_demos, demo_length))
-            # σ on the demo and current graphs in one batch: (B, N·L + 1, K, H).
-            demo_positions, demo_features = demo_geometry
+            # σ on the demo and current graphs in one batch: (B, N·L + 1, G, H).
             gripper_features = self._observation_gripper_features(
-                torch.cat([demo_positions.flatten(1, 2), scene_positions[:, None]], dim=1),
-                torch.cat([demo_features.flatten(1, 2), scene_features[:, None]], dim=1),
-                torch.cat([demo_gripper.flatten(1, 2), gripper[:, None]], dim=1),
+                torch.cat([demos.scene_positions.flatten(1, 2), scene_positions[:, None]], dim=1),
+                torch.cat([demos.scene_features.flatten(1, 2), scene_features[:, None]], dim=1),
+                torch.cat([demos.gripper_open.flatten(1, 2), gripper[:, None]], dim=1),
                 leading=(batch, num_demos * demo_length + 1),
             )
         else:
@@ -447,7 +392,7 @@ class InstantPolicyNetwork(nn.Module):
 
         graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, points_world.device)
         keypoints = self._keypoints(points_world)
-        demo_frames = demo_T_world_ee.reshape(-1, 4, 4)
+        demo_frames = demos.T_world_ee.reshape(-1, 4, 4)
         edge_attr = {
             DEMO_TIME: transform_attr(demo_frames, demo_frames, graph[DEMO_TIME], keypoints, self.config.num_frequencies),
             DEMO_TO_CURRENT: keypoint_offset_attr(graph[DEMO_TO_CURRENT], keypoints, self.config.num_frequencies),
@@ -484,7 +429,7 @@ class InstantPolicyNetwork(nn.Module):
             ``(B, T, K, 7)``: translation flow (3) and rotation flow (3), normalised as in
             :meth:`ActionDiffusion.flow_targets`, then the logit of the clean gripper command being "open".
         """
-        batch, horizon = context.batch_size, self.config.prediction_horizon
+        batch, horizon = context.batch_size, self.config.horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
         self._check_tensor("action_gripper", action_gripper, (batch, horizon))
         gripper_features = self.action_gripper_features(action_gripper, timesteps)
@@ -507,8 +452,8 @@ class InstantPolicyNetwork(nn.Module):
     def _action_features(
         self, context: InstantPolicyContext, T_ee_actions: torch.Tensor, gripper_features: torch.Tensor
     ) -> torch.Tensor:
-        """ψ: current and action gripper nodes ``(B, T · K, H)`` after σ, action frames ``(B, T, 4, 4)`` in the EE
-        frame → the action gripper nodes' features ``(B · T · K, H)``."""
+        """ψ: current and action gripper nodes ``(B, T · G, H)`` after σ, action frames ``(B, T, 4, 4)`` in the EE
+        frame → the action gripper nodes' features ``(B · T · G, H)``."""
         batch, horizon = T_ee_actions.shape[:2]
         keypoints = self._keypoints(T_ee_actions)
         frequencies = self.config.num_frequencies
@@ -555,14 +500,14 @@ class InstantPolicyNetwork(nn.Module):
             gripper logits against the clean command). The flows drive the gradients: the gripper is a binary label
             that a cross-entropy learns fast, while its squared error on ±1 targets dominated the sum.
         """
-        batch, horizon = context.batch_size, self.config.prediction_horizon
+        batch, horizon = context.batch_size, self.config.horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
         self._check_tensor("action_gripper", action_gripper, (batch, horizon))
         device = T_ee_actions.device
         noise_device = generator.device if generator is not None else device
         clean = self.diffusion.normalize(T_ee_actions, action_gripper)
         timesteps = torch.randint(
-            0, self.config.num_train_timesteps, (batch,), generator=generator, device=noise_device
+            0, self.config.diffusion_train_steps, (batch,), generator=generator, device=noise_device
         ).to(device)
         noise = torch.randn(clean.shape, generator=generator, device=noise_device, dtype=clean.dtype).to(device)
         T_noisy, gripper_noisy = self.diffusion.unnormalize(self.diffusion.add_noise(clean, noise, timesteps))
@@ -590,14 +535,13 @@ class InstantPolicyNetwork(nn.Module):
         context: InstantPolicyContext,
         generator: torch.Generator | None = None,
         num_inference_steps: int | None = None,
-        trajectory: list | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """DDIM-sample the actions.
 
         Returns:
             ``T_ee_actions (B, T, 4, 4)``: action poses in the current EE frame; ``gripper_open (B, T)`` in {0, 1}.
         """
-        steps = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
+        steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
         sample = self.diffusion.sample(
             lambda T_noisy, gripper, timesteps: self._denoise_to_values(context, T_noisy, gripper, timesteps),
             context.batch_size,
@@ -605,7 +549,6 @@ class InstantPolicyNetwork(nn.Module):
             generator=generator,
             device=context.points_ee.device,
             dtype=context.points_ee.dtype,
-            trajectory=trajectory,
         )
         T_ee_actions, gripper = self.diffusion.unnormalize(sample)
         return T_ee_actions, (gripper > 0).to(sample.dtype)

@@ -7,6 +7,8 @@ the torch loop and with the same indices (tested); the torch loop serves other d
 
 from __future__ import annotations
 
+import warnings
+
 import fpsample
 import numpy as np
 import torch
@@ -73,9 +75,14 @@ def gather_points(values: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
 def group_max(values: torch.Tensor, groups: torch.Tensor, num_groups: int) -> torch.Tensor:
     """Per-group maximum: ``values (B, P, C)``, ``groups (B, P)`` in ``[0, num_groups)`` → ``(B, num_groups, C)``.
 
-    An empty group (possible only when a cloud repeats points) gets zeros.
+    An empty group (possible only when a cloud repeats points) gets zeros. The groups of all clouds are reduced as rows
+    of one ``(B · num_groups, C)`` table (``index_reduce``: several times faster than a ``scatter_reduce`` along the
+    points, with the same values and gradients).
     """
     batch, _, channels = values.shape
-    pooled = values.new_zeros(batch, num_groups, channels)
-    index = groups[..., None].expand(-1, -1, channels)
-    return pooled.scatter_reduce(1, index, values, reduce="amax", include_self=False)
+    rows = (groups + num_groups * torch.arange(batch, device=groups.device)[:, None]).flatten()
+    pooled = values.new_zeros(batch * num_groups, channels)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="index_reduce", category=UserWarning)  # "in beta" (stable since 2.0)
+        pooled = pooled.index_reduce(0, rows, values.reshape(-1, channels), "amax", include_self=False)
+    return pooled.view(batch, num_groups, channels)

@@ -75,15 +75,15 @@ class EvaluationSet:
     """A fixed sample of frames of one pseudo-demonstration dataset (build it with :func:`load_evaluation_set`).
 
     ``indices (S,)``: the frames, sorted. ``dataset`` (a ``LeRobotDataset`` with the policy's delta timestamps) and
-    ``bank`` (its episodes' context waypoints) are loaded on first use, so a run whose checkpoints are all cached
-    reads only the metadata.
+    ``bank`` (its episodes' context waypoints, without clouds) are loaded on first use, so a run whose checkpoints are
+    all cached reads only the metadata. The frozen encoder's output for its frames comes from frame encodings stored
+    beside the dataset (:mod:`..frame_encodings`, built on first use for each encoder), as in training.
     """
 
     def __init__(self, name: str, repo_id: str, meta, config, indices: np.ndarray):
         self.name, self.repo_id, self.root, self.meta, self.config = name, repo_id, Path(meta.root), meta, config
         self.indices = indices
         self.fingerprint = dataset_fingerprint(self.root)
-        self.encoder_fingerprint: str | None = None
 
     @cached_property
     def dataset(self):
@@ -95,7 +95,7 @@ class EvaluationSet:
 
     @cached_property
     def bank(self) -> ContextBank:
-        return ContextBank.from_dataset_meta(self.meta, self.config.num_waypoints)
+        return ContextBank.from_dataset_meta(self.meta, self.config.num_waypoints, read_points=False)
 
     def describe(self) -> dict:
         """Root, content fingerprint and sizes (episodes, pseudo-tasks, frames, sampled frames)."""
@@ -220,14 +220,6 @@ def load_evaluation_set(name: str, root: str | Path, config, samples: int, seed:
 
 
 # ---------------------------------------------------------------------------------------------------- evaluation
-def _encoder_fingerprint(policy: InstantPolicyPolicy) -> str:
-    digest = hashlib.sha256()
-    for name, tensor in sorted(policy.network.geometry_encoder.state_dict().items()):
-        digest.update(name.encode())
-        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
-    return digest.hexdigest()
-
-
 def _loader(evaluation: EvaluationSet, batch_size: int):
     return torch.utils.data.DataLoader(
         torch.utils.data.Subset(evaluation.dataset, evaluation.indices.tolist()), batch_size=batch_size,
@@ -240,19 +232,16 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
                   seed: int = 0, swap_context: bool = False) -> LossEstimate:
     """The mean of ``policy.forward``'s loss and parts over ``evaluation``'s frames, in batches of ``batch_size``.
 
-    The policy's training bank becomes ``evaluation.bank`` (its cached frozen-encoder outputs are kept while the
-    encoder weights stay the same). Torch's RNG is seeded with ``seed`` inside ``torch.random.fork_rng``, so the
+    The policy's training bank becomes ``evaluation.bank``, with the frame encodings of ``evaluation``'s dataset for
+    the policy's encoder (``InstantPolicyPolicy.frame_encodings``: loaded from beside the dataset, built there once). Torch's RNG is seeded with ``seed`` inside ``torch.random.fork_rng``, so the
     caller's RNG state is untouched and every call with the same frames, ``batch_size`` and ``seed`` draws the same
     timesteps, noise, context episodes and gripper flips. With ``swap_context`` every frame's context comes from the
     next pseudo-task instead of its own (everything else drawn the same). The policy is left in the mode it was in.
     """
     if batch_size < 1:
         raise LossCurveError(f"batch_size must be at least 1, got {batch_size}")
-    encoder = _encoder_fingerprint(policy)
-    if evaluation.encoder_fingerprint != encoder:
-        evaluation.bank.clear_encoded()
-        evaluation.encoder_fingerprint = encoder
-    policy.set_training_bank(evaluation.bank.with_swapped_contexts() if swap_context else evaluation.bank)
+    bank = evaluation.bank.with_swapped_contexts() if swap_context else evaluation.bank
+    policy.set_training_bank(bank, policy.frame_encodings(evaluation.meta))
     loader = _loader(evaluation, batch_size)
     device = next(policy.parameters()).device
     sums = dict.fromkeys(LOSS_PARTS, 0.0)

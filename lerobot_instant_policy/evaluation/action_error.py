@@ -1,0 +1,285 @@
+"""Offline action error of an ``instant_policy`` checkpoint on held-out pseudo-tasks (``lerobot-ip-action-error``),
+as the inference parameters K (denoising steps), N (context demonstrations) and L (waypoints per demonstration) vary
+(the paper's table 2, right half, measured without a simulator).
+
+For each of the first ``tasks`` pseudo-tasks of a pseudo-demonstration dataset (written by ``lerobot-ip-generate``,
+episodes of one pseudo-task share its ``task`` string), in order of their first episode:
+
+* its **last** episode is the "live" episode, its **first N** episodes the context demonstrations (so N must be at
+  most demos-per-task − 1: the live episode is never its own context);
+* ``frames_per_task`` frames t of the live episode are drawn without replacement (``numpy`` RNG seeded with
+  ``seed``, per task); at each frame the policy sees the live cloud ``points_world[t] (P, 3)`` and state
+  ``state[t] (8,)`` (world frame) and predicts a chunk ``(T, 8)`` of absolute world-frame EE targets;
+* the ground truth is the live episode's ``action[t … t+T−1] (T, 8)``, held at its last action past the end;
+* the DDIM noise of every frame comes from a ``torch.Generator`` seeded from (``seed``, task, frame) only, so all
+  settings are compared on the same noise.
+
+Errors, averaged over all frames and all T horizon steps: translation ``‖p̂ − p‖`` in millimetres (world frame),
+rotation the geodesic angle between the predicted and true EE orientations in degrees, gripper accuracy the fraction
+of steps whose open/closed command (threshold 0.5) is right. Settings vary one parameter at a time around the
+defaults K=4, N=2, L=10 (the defaults row appears once). Three references at the default setting: the same config
+freshly initialised (``torch.manual_seed(0)``; its frozen geometry encoder is the config's pretrained one, as in a
+checkpoint before training), "hold": predicting the current state for every horizon step (no model), and the
+**context swap**: the same checkpoint, frames and noise, with the demonstrations of the *next* pseudo-task (in the
+order above, the last task taking the first's) relabelled as this task's. **Context gain** = swap error / own error,
+for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores its demonstrations.
+
+K is handed to ``predict_action_chunk`` (``num_inference_steps``) at every prediction; the checkpoint's config is
+left as it was loaded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_INFERENCE_STEPS, SUPPORTED_WAYPOINTS
+from ..contract import POINTCLOUD_KEY, STATE_KEY
+from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
+from ..modeling_instant_policy import InstantPolicyPolicy
+from ..training.loss_curve import check_pseudo_demo_root, load_policy
+
+DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
+
+
+class ActionErrorError(ValueError):
+    """Bad settings (N too large for the dataset, K or L outside the supported range, …)."""
+
+
+@dataclasses.dataclass
+class LiveFrame:
+    """One evaluated frame: ``points (P, 3)`` and ``state (8,)`` of the live episode at frame ``t`` (world frame),
+    ``target (T, 8)`` its actions t … t+T−1 (held at the last one), ``noise_seed`` of its DDIM generator."""
+
+    t: int
+    points: np.ndarray
+    state: np.ndarray
+    target: np.ndarray
+    noise_seed: int
+
+
+@dataclasses.dataclass
+class HeldOutTask:
+    """A pseudo-task: its ``demos`` (all episodes but the last, in episode order) and ``frames`` of the last."""
+
+    task: str
+    live_episode: int
+    demos: list[Demonstration]
+    frames: list[LiveFrame]
+
+
+# ---------------------------------------------------------------------------------------------------- errors
+def chunk_errors(predicted: np.ndarray, target: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-step errors of ``predicted`` vs ``target``, both ``(..., 8)`` (xyz m, quaternion xyzw, gripper):
+    ``translation_mm (...)``, ``rotation_deg (...)`` (geodesic angle, sign of the quaternion ignored),
+    ``gripper_correct (...)`` (bool, commands thresholded at 0.5)."""
+    if predicted.shape != target.shape or predicted.shape[-1] != 8:
+        raise ValueError(f"predicted and target must both have shape (..., 8), got {predicted.shape}, {target.shape}")
+    translation = 1000.0 * np.linalg.norm(predicted[..., :3] - target[..., :3], axis=-1)
+    q_pred = predicted[..., 3:7] / np.linalg.norm(predicted[..., 3:7], axis=-1, keepdims=True)
+    q_true = target[..., 3:7] / np.linalg.norm(target[..., 3:7], axis=-1, keepdims=True)
+    dot = np.clip(np.abs(np.sum(q_pred * q_true, axis=-1)), 0.0, 1.0)
+    rotation = np.degrees(2.0 * np.arccos(dot))
+    gripper = (predicted[..., 7] > 0.5) == (target[..., 7] > 0.5)
+    return {"translation_mm": translation, "rotation_deg": rotation, "gripper_correct": gripper}
+
+
+def summarise(errors: list[dict[str, np.ndarray]]) -> dict:
+    """Means over all frames and horizon steps of :func:`chunk_errors` results (one per frame, each ``(T,)``), the
+    first horizon step's mean translation error, and standard errors over frames (``*_sem``)."""
+    translation = np.concatenate([e["translation_mm"].ravel() for e in errors])
+    rotation = np.concatenate([e["rotation_deg"].ravel() for e in errors])
+    gripper = np.concatenate([e["gripper_correct"].ravel() for e in errors])
+    first = np.array([e["translation_mm"].reshape(-1)[0] for e in errors])
+
+    def sem(key: str) -> float:  # standard error over frames of the per-frame mean (frames are the samples)
+        per_frame = np.array([e[key].mean() for e in errors])
+        return round(float(per_frame.std(ddof=1) / math.sqrt(len(per_frame))), 3) if len(per_frame) > 1 else 0.0
+
+    return {
+        "translation_mm": round(float(translation.mean()), 3),
+        "translation_mm_sem": sem("translation_mm"),
+        "translation_mm_first_step": round(float(first.mean()), 3),
+        "rotation_deg": round(float(rotation.mean()), 3),
+        "rotation_deg_sem": sem("rotation_deg"),
+        "gripper_accuracy": round(float(gripper.mean()), 4),
+        "frames": len(errors),
+        "steps": int(translation.size),
+    }
+
+
+# ---------------------------------------------------------------------------------------------------- data
+def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, horizon: int, seed: int,
+                        repo_id: str | None = None) -> list[HeldOutTask]:
+    """The first ``num_tasks`` pseudo-tasks of the pseudo-demonstration dataset at ``root`` (each with ≥ 2 episodes),
+    with ``frames_per_task`` seeded frames (all when shorter) of each live (last) episode; ``LossCurveError`` /
+    ``DemonstrationError`` / ``ActionErrorError`` naming the problem."""
+    if num_tasks < 1 or frames_per_task < 1:
+        raise ActionErrorError(f"tasks and frames-per-task must be at least 1, got {num_tasks}, {frames_per_task}")
+    root = check_pseudo_demo_root(root)
+    dataset = open_demo_dataset(repo_id or f"local/{root.name}", root)
+    by_task: dict[str, list[int]] = {}
+    for episode in dataset.meta.episodes:
+        by_task.setdefault(str(episode["tasks"][0]), []).append(int(episode["episode_index"]))
+    usable = {task: episodes for task, episodes in by_task.items() if len(episodes) >= 2}
+    if len(usable) < num_tasks:
+        raise ActionErrorError(
+            f"asked for {num_tasks} pseudo-tasks but the dataset at {root} has {len(usable)} with at least 2 episodes "
+            f"(one live, ≥ 1 context)"
+        )
+    held_out = []
+    for task_number, (task, episodes) in enumerate(sorted(usable.items(), key=lambda item: min(item[1]))[:num_tasks]):
+        episodes = sorted(episodes)
+        demos = [read_demonstration(dataset, episode_index, task) for episode_index in episodes]
+        live = demos.pop()
+        rng = np.random.default_rng([seed, task_number])
+        count = min(frames_per_task, live.num_frames)
+        chosen = np.sort(rng.choice(live.num_frames, size=count, replace=False))
+        frames = []
+        for t in chosen.tolist():
+            steps = np.minimum(np.arange(t, t + horizon), live.num_frames - 1)
+            noise_seed = int(np.random.SeedSequence([seed, task_number, t]).generate_state(1)[0])
+            frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed))
+        held_out.append(HeldOutTask(task, episodes[-1], demos, frames))
+    return held_out
+
+
+# ---------------------------------------------------------------------------------------------------- inference
+def predict_task(policy: InstantPolicyPolicy, held_out: HeldOutTask, k: int) -> list[np.ndarray]:
+    """``(T, 8)`` predictions at every frame of ``held_out`` with K = ``k`` DDIM steps (context already set), one frame
+    at a time with its own seeded generator."""
+    device = next(policy.parameters()).device
+    predictions = []
+    for frame in held_out.frames:
+        batch = {POINTCLOUD_KEY: torch.from_numpy(frame.points[None]).to(device),
+                 STATE_KEY: torch.from_numpy(frame.state[None]).to(device), "task": [held_out.task]}
+        generator = torch.Generator(device="cpu").manual_seed(frame.noise_seed)
+        chunk = policy.predict_action_chunk(batch, generator=generator, num_inference_steps=k)
+        predictions.append(chunk[0].double().cpu().numpy())
+    return predictions
+
+
+def evaluate_settings(policy: InstantPolicyPolicy, tasks: list[HeldOutTask],
+                      settings: list[tuple[int, int, int]]) -> list[dict]:
+    """Summaries of :func:`chunk_errors` over all tasks' frames for each ``(K, N, L)`` in ``settings``."""
+    errors: dict[tuple[int, int, int], list] = {setting: [] for setting in settings}
+    seconds = dict.fromkeys(settings, 0.0)
+    for held_out in tasks:
+        for n, l in dict.fromkeys((n, l) for _, n, l in settings):
+            policy.set_demonstrations(held_out.demos[:n], num_waypoints=l)
+            for k in [k for k, n2, l2 in settings if (n2, l2) == (n, l)]:
+                start = time.perf_counter()
+                predictions = predict_task(policy, held_out, k)
+                seconds[(k, n, l)] += time.perf_counter() - start
+                errors[(k, n, l)] += [chunk_errors(p, f.target.astype(np.float64))
+                                      for p, f in zip(predictions, held_out.frames)]
+    results = []
+    for setting in settings:
+        k, n, l = setting
+        frames = len(errors[setting])
+        results.append({"K": k, "N": n, "L": l, **summarise(errors[setting]),
+                        "ms_per_prediction": round(1000 * seconds[setting] / frames, 1)})
+    return results
+
+
+def hold_reference(tasks: list[HeldOutTask]) -> dict:
+    """Errors of predicting the current state ``(8,)`` for every horizon step (no model)."""
+    errors = [chunk_errors(np.repeat(f.state[None].astype(np.float64), len(f.target), axis=0),
+                           f.target.astype(np.float64)) for held in tasks for f in held.frames]
+    return summarise(errors)
+
+
+def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
+    """Each task with the next task's demonstrations (the last with the first's), relabelled as its own."""
+    if len(tasks) < 2:
+        raise ActionErrorError("the context swap needs at least 2 pseudo-tasks")
+    return [
+        dataclasses.replace(held, demos=[dataclasses.replace(demo, task=held.task)
+                                         for demo in tasks[(index + 1) % len(tasks)].demos])
+        for index, held in enumerate(tasks)
+    ]
+
+
+def context_gain(own: dict, swap: dict) -> dict:
+    """``swap / own`` of the translation and rotation errors and of the gripper error (1 − accuracy)."""
+    def ratio(swap_error: float, own_error: float) -> float | None:
+        return round(swap_error / own_error, 3) if own_error > 0 else None
+
+    return {
+        "translation": ratio(swap["translation_mm"], own["translation_mm"]),
+        "rotation": ratio(swap["rotation_deg"], own["rotation_deg"]),
+        "gripper": ratio(1.0 - swap["gripper_accuracy"], 1.0 - own["gripper_accuracy"]),
+    }
+
+
+def grid(ks: list[int], ns: list[int], ls: list[int], default: tuple[int, int, int]) -> list[tuple[int, int, int]]:
+    """(K, N, L) settings varying one parameter at a time around ``default`` (which appears once, first)."""
+    k0, n0, l0 = default
+    settings = [default] + [(k, n0, l0) for k in ks] + [(k0, n, l0) for n in ns] + [(k0, n0, l) for l in ls]
+    return list(dict.fromkeys(settings))
+
+
+def _check_range(name: str, values: list[int], supported: tuple[int, int]) -> None:
+    low, high = supported
+    bad = [value for value in values if not low <= value <= high]
+    if bad:
+        raise ActionErrorError(f"{name} must be in {low}…{high}, got {bad}")
+
+
+def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, frames_per_task: int = 4, seed: int = 0,
+                 ks: list[int] = (1, 2, 4, 8), ns: list[int] = (1, 2, 3), ls: list[int] = (2, 5, 10, 15),
+                 default: tuple[int, int, int] = (DEFAULT_K, DEFAULT_N, DEFAULT_L), untrained: bool = True,
+                 repo_id: str | None = None, device: str = "cpu") -> dict:
+    """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` (module docstring).
+
+    Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained``, ``hold`` and
+    ``swap`` references at the default setting, ``context_gain`` (swap / own error at the default setting), the dataset and sample description and the wall time. Raises
+    ``ActionErrorError`` / ``LossCurveError`` / ``DemonstrationError`` on bad input (N ≥ demos per task, …).
+    """
+    ks, ns, ls, default = list(ks), list(ns), list(ls), tuple(default)
+    _check_range("K (denoising steps)", ks + [default[0]], SUPPORTED_INFERENCE_STEPS)
+    _check_range("N (demonstrations)", ns + [default[1]], SUPPORTED_DEMOS)
+    _check_range("L (waypoints)", ls + [default[2]], SUPPORTED_WAYPOINTS)
+    start = time.perf_counter()
+    policy = load_policy(policy_path, device)
+    config = policy.config
+    held_out = load_held_out_tasks(root, tasks, frames_per_task, config.horizon, seed, repo_id)
+    fewest = min(len(task.demos) for task in held_out)
+    largest = max(ns + [default[1]])
+    if largest > fewest:
+        raise ActionErrorError(
+            f"N={largest} context demonstrations asked, but a pseudo-task at {root} has only {fewest + 1} episodes: "
+            f"its last is the live episode, so N can be at most {fewest} (demos per task − 1)"
+        )
+    if held_out[0].frames[0].points.shape[0] != config.num_points:
+        raise ActionErrorError(f"the dataset's clouds have {held_out[0].frames[0].points.shape[0]} points, the "
+                               f"checkpoint expects {config.num_points}")
+    settings = grid(ks, ns, ls, default)
+    result = {
+        "checkpoint": str(policy_path), "root": str(root), "device": device, "torch_threads": torch.get_num_threads(),
+        "tasks": len(held_out), "frames_per_task": frames_per_task,
+        "frames": sum(len(task.frames) for task in held_out), "horizon_T": config.horizon, "seed": seed,
+        "checkpoint_defaults": {"K": config.inference_steps, "N": config.num_demos, "L": config.num_waypoints},
+        "default": dict(zip("KNL", default)),
+        "settings": evaluate_settings(policy, held_out, settings),
+    }
+    result["swap"] = evaluate_settings(policy, swapped_context(held_out), [default])[0]
+    result["context_gain"] = context_gain(result["settings"][0], result["swap"])
+    if untrained:
+        with torch.random.fork_rng(devices=[]), contextlib.redirect_stdout(sys.stderr):  # caller's RNG untouched
+            torch.manual_seed(0)
+            fresh = InstantPolicyPolicy(dataclasses.replace(policy.config)).to(device).eval()
+        result["untrained"] = evaluate_settings(fresh, held_out, [default])[0]
+    result["hold"] = hold_reference(held_out)
+    result["wall_s"] = round(time.perf_counter() - start, 1)
+    return result
+
+
+# ---------------------------------------------------------------------------------------------------- CLI
