@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo pseudo-demos train-data train ladder results results-suite results-study eval-suite perception-eval test install clean
+.PHONY: demo pseudo-demos train-data train train-gpu ladder results results-suite results-study eval-suite perception-eval test install clean
 
 install: $(INSTALLED)
 
@@ -71,6 +71,20 @@ ladder: $(INSTALLED)
 		--wandb.enable=false --output_dir=$(LADDER_DIR))
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-action-error --policy-path $(LADDER_DIR)/checkpoints/last/pretrained_model \
 		--root outputs/$(RUNG_NAME)_val --tasks 24 --frames-per-task 4 --K 4 --N 2 --L 10 --no-untrained --json
+
+# Issue 12.6 (README "Training on a GPU"): one GPU with 16 CPU cores, about 25 minutes. Four rounds of 200 reach
+# pseudo-tasks x 6 demonstrations (about 54k frames each: 45 frames per episode; 12 workers at the 56 frames/s per
+# worker measured on an H100 machine's cores render one in about 80 s), 1,000 steps of batch 32 per round (5-6 steps/s
+# measured there: about 3.3 min), each round generated while the previous one trains; then the action error and
+# context gain on 24 held-out pseudo-tasks and the loss curve; float32 (use_amp is float16 on CUDA in LeRobot 0.6.1,
+# untried here). It resumes where it stopped. TRAIN_GPU_ARGS adds or overrides flags: '--start shipped',
+# '--family reach_grip', '--rounds 6', '--dry-run', or for several GPUs
+# '--launcher "accelerate launch --multi_gpu --num_processes=4"'. Uses lerobot-ip-train-rounds from the PATH when it
+# is there (an install without .venv, as on a GPU machine without network), else .venv (installed on first use).
+TRAIN_GPU_ARGS ?=
+TRAIN_ROUNDS_ON_PATH := $(shell command -v lerobot-ip-train-rounds 2>/dev/null)
+train-gpu: $(if $(TRAIN_ROUNDS_ON_PATH),,$(INSTALLED))
+	$(or $(TRAIN_ROUNDS_ON_PATH),$(VENV)/bin/lerobot-ip-train-rounds) --config configs/train_rounds/gpu.json $(TRAIN_GPU_ARGS)
 
 # docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
 # every task, 10 episodes each (issue 14's RGB-D vs segmented table).
