@@ -14,7 +14,7 @@ import pytest
 import torch
 from synthetic_demos import NUM_FRAMES, object_pose, write_demo_dataset
 
-from lerobot_instant_policy.data import merge
+from lerobot_instant_policy.pseudo_demos import merge
 from lerobot_instant_policy.frame_encodings import (
     META_FILE,
     build_frame_encodings,

@@ -9,11 +9,11 @@ import torch
 
 import lerobot_instant_policy
 from lerobot_instant_policy.cli.pretrain_encoder import main as pretrain_main
-from lerobot_instant_policy.data.occupancy import OccupancyDataConfig, generate_occupancy_set
 from lerobot_instant_policy.model.geometry_encoder import encoder_preset
 from lerobot_instant_policy.model.occupancy import OccupancyNetwork, load_geometry_encoder, sidecar_path
-from lerobot_instant_policy.training import encoder_pretraining
-from lerobot_instant_policy.training.encoder_pretraining import PretrainConfig, pretrain, resume_path
+from lerobot_instant_policy.pretraining import encoder_pretraining
+from lerobot_instant_policy.pretraining.encoder_pretraining import PretrainConfig, pretrain, resume_path
+from lerobot_instant_policy.pretraining.occupancy_data import OccupancyDataConfig, generate_occupancy_set
 
 SHIPPED = Path(lerobot_instant_policy.__file__).parent / "assets" / "encoder" / "small.safetensors"
 SMALL_DATA = OccupancyDataConfig(num_queries=256, dense_samples=4096)

@@ -13,8 +13,8 @@ from scipy.spatial import cKDTree
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.contract import POSE_GRIPPER_NAMES
 from lerobot_instant_policy.data.lerobot_format import read_episode
-from lerobot_instant_policy.data.objects import load_object
 from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
+from lerobot_instant_policy.pseudo_demos.objects import load_object
 
 REPO_ID = "local/test_pseudo"
 
@@ -141,7 +141,7 @@ def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with
     from lerobot.datasets import LeRobotDataset
 
     from lerobot_instant_policy.cli.generate import build_parser, config_from_args
-    from lerobot_instant_policy.data.generation import generate_shard, prepare_output, shard_ranges
+    from lerobot_instant_policy.pseudo_demos.generation import generate_shard, prepare_output, shard_ranges
 
     arguments = ["--num-tasks", "2", "--demos-per-task", "2", "--seed", "7", "--tasks-per-shard", "1"]
     fresh, resumed = tmp_path / "fresh", tmp_path / "resumed"
@@ -194,7 +194,7 @@ def test_existing_output_is_never_overwritten_without_consent(tmp_path, capsys):
 
 def test_resume_refuses_changed_settings(tmp_path, capsys):
     from lerobot_instant_policy.cli.generate import build_parser, config_from_args
-    from lerobot_instant_policy.data.generation import prepare_output
+    from lerobot_instant_policy.pseudo_demos.generation import prepare_output
 
     out = tmp_path / "run"
     config = config_from_args(build_parser().parse_args(["--out", str(out), "--num-tasks", "2", "--seed", "1"]))

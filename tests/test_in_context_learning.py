@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_instant_policy.evaluation import action_error as ae
 from lerobot_instant_policy.cli.generate import main as generate_main
+from lerobot_instant_policy.evaluation import action_error as ae
 
 TRAIN = Path(sys.executable).parent / "lerobot-train"
 STEPS = 600

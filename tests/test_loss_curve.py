@@ -18,9 +18,7 @@ from test_lerobot_train import run_train
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.cli.loss_curve import main as loss_curve_main
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
-from lerobot_instant_policy.training.loss_curve import (
+from lerobot_instant_policy.evaluation.loss_curve import (
     LossCurveCache,
     LossCurveError,
     LossEstimate,
@@ -30,6 +28,8 @@ from lerobot_instant_policy.training.loss_curve import (
     load_evaluation_set,
     prior_only_loss,
 )
+from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 

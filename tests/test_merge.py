@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_instant_policy.data import merge
-from lerobot_instant_policy.data.generation import (
+from lerobot_instant_policy.pseudo_demos import merge
+from lerobot_instant_policy.pseudo_demos.generation import (
     DEMOS_FILE,
     SHARDS_DIR,
     TASKS_FILE,
@@ -25,8 +25,8 @@ from lerobot_instant_policy.data.generation import (
     shard_ranges,
     shard_repo_id,
 )
-from lerobot_instant_policy.data.pseudo_demos import DemoConfig
-from lerobot_instant_policy.data.rendering import RenderConfig
+from lerobot_instant_policy.pseudo_demos.rendering import RenderConfig
+from lerobot_instant_policy.pseudo_demos.replay import DemoConfig
 
 REPO_ID = "local/test_merge"
 _REAL_REWRITE = merge.rewrite_data_file

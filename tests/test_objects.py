@@ -1,4 +1,4 @@
-"""The object library: ids, splits and normalised meshes (``data.objects``)."""
+"""The object library: ids, splits and normalised meshes (``pseudo_demos.objects``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from lerobot_instant_policy.data.objects import (
+from lerobot_instant_policy.pseudo_demos.objects import (
     MAX_FACES,
     MAX_SIZE,
     MIN_SIZE,

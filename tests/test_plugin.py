@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from lerobot_instant_policy.config_io import config_from_dict, load_config
-from lerobot_instant_policy.data.generation import GenerationConfig
+from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
 
 REPO = Path(__file__).resolve().parents[1]
 

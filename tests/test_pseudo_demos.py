@@ -8,22 +8,6 @@ import trimesh
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from lerobot_instant_policy.data.objects import is_held_out, load_object
-from lerobot_instant_policy.data.pseudo_demos import (
-    DemoConfig,
-    GenerationError,
-    hold_signature,
-    make_demo,
-)
-from lerobot_instant_policy.data.pseudo_tasks import (
-    FAMILIES,
-    GRASP_REACH,
-    INTERPOLATIONS,
-    TEMPLATES,
-    sample_pseudo_task,
-)
-from lerobot_instant_policy.data.rendering import PointCloudRenderer, RenderConfig
-from lerobot_instant_policy.data.trajectory import MAX_STEP_ROTATION, MAX_STEP_TRANSLATION
 from lerobot_instant_policy.geometry.se3 import (
     invert,
     look_rotation,
@@ -32,6 +16,22 @@ from lerobot_instant_policy.geometry.se3 import (
     pose_from_pos_quat,
     transform_points,
 )
+from lerobot_instant_policy.pseudo_demos.objects import is_held_out, load_object
+from lerobot_instant_policy.pseudo_demos.rendering import PointCloudRenderer, RenderConfig
+from lerobot_instant_policy.pseudo_demos.replay import (
+    DemoConfig,
+    GenerationError,
+    hold_signature,
+    make_demo,
+)
+from lerobot_instant_policy.pseudo_demos.tasks import (
+    FAMILIES,
+    GRASP_REACH,
+    INTERPOLATIONS,
+    TEMPLATES,
+    sample_pseudo_task,
+)
+from lerobot_instant_policy.pseudo_demos.trajectory import MAX_STEP_ROTATION, MAX_STEP_TRANSLATION
 
 OBJECT_IDS = ("prim/box_0", "prim/cylinder_0")
 SURFACE_TOLERANCE = 0.0035  # rasterisation at ≤ 128-pixel crops puts points up to ~3 mm off the surface

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from synthetic_demos import make_demonstration, object_cloud, object_pose
 
 from lerobot_instant_policy.cli import demo
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from synthetic_demos import make_demonstration, object_cloud, object_pose
 
 REFERENCE = Path(__file__).parent / "data" / "shipped_actions.npz"
 TASK = "reach_the_mug"

@@ -12,13 +12,13 @@ import torch
 from lerobot_instant_policy.cli import demo
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.training.loss_curve import (
+from lerobot_instant_policy.evaluation.loss_curve import (
     Checkpoint,
     evaluate_loss,
     load_checkpoint,
     load_evaluation_set,
 )
+from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 SHIPPED = demo.SHIPPED_CHECKPOINT
 MAX_BYTES = 50 * 1024**2

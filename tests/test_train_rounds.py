@@ -17,7 +17,9 @@ from pathlib import Path
 import pytest
 
 from lerobot_instant_policy.cli import train_rounds
-from lerobot_instant_policy.cli.train_rounds import (
+from lerobot_instant_policy.cli.train_rounds import main
+from lerobot_instant_policy.training import rounds
+from lerobot_instant_policy.training.rounds import (
     SHIPPED_CHECKPOINT,
     Layout,
     Runner,
@@ -25,7 +27,6 @@ from lerobot_instant_policy.cli.train_rounds import (
     Step,
     TrainRoundsConfig,
     TrainRoundsError,
-    main,
     read_state,
     write_state,
 )
@@ -155,7 +156,7 @@ def test_training_resumes_the_latest_checkpoint_and_more_rounds_than_asked_are_r
     # killed before "last" pointed at step 4: the latest numbered checkpoint is resumed
     assert layout.latest_checkpoint() == at_4 and layout.trained_steps() == 4
     assert f"--config_path={at_4 / 'pretrained_model' / 'train_config.json'}" in (
-        train_rounds.train_command(config, layout, 1, layout.latest_checkpoint()))
+        rounds.train_command(config, layout, 1, layout.latest_checkpoint()))
     (layout.run / "checkpoints" / "last").symlink_to("000002")
     assert layout.latest_checkpoint() == layout.last_checkpoint and layout.trained_steps() == 2
 
@@ -217,9 +218,9 @@ def test_the_runner_skips_recorded_stages_and_stops_the_background_when_a_stage_
 
 
 def test_the_json_result_is_found_after_other_output():
-    assert train_rounds.json_result('loading {x}\n{\n  "a": 1\n}\n') == {"a": 1}
+    assert rounds.json_result('loading {x}\n{\n  "a": 1\n}\n') == {"a": 1}
     with pytest.raises(TrainRoundsError, match="no JSON result"):
-        train_rounds.json_result("nothing here")
+        rounds.json_result("nothing here")
 
 
 def _run_command(out: Path, config: Path) -> list[str]:

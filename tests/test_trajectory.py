@@ -1,4 +1,4 @@
-"""Gripper motion: interpolation, uniform resampling, disturbances and gripper faults (``data.trajectory``)."""
+"""Gripper motion: interpolation, uniform resampling, disturbances and gripper faults (``pseudo_demos.trajectory``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lerobot_instant_policy.data.trajectory import (
+from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance
+from lerobot_instant_policy.pseudo_demos.trajectory import (
     MAX_STEP_ROTATION,
     MAX_STEP_TRANSLATION,
     Step,
@@ -18,7 +19,6 @@ from lerobot_instant_policy.data.trajectory import (
     resample_uniform,
     steps_from_states,
 )
-from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance
 
 SLACK = 1e-6
 

@@ -11,7 +11,7 @@ import sys
 
 from ..data.demonstrations import DemonstrationError
 from ..evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N, ActionErrorError, action_error
-from ..training.loss_curve import LossCurveError
+from ..evaluation.loss_curve import LossCurveError
 
 PROG = "lerobot-ip-action-error"
 

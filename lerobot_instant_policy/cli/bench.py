@@ -30,8 +30,8 @@ import time
 def _generate_worker(job: tuple[int, int, int]) -> tuple[int, int, float]:
     """Generate ``tasks`` pseudo-tasks of seed ``seed`` from ``first``; returns (frames, demos, seconds)."""
     seed, first, tasks = job
-    from ..data.generation import GenerationConfig, generate_task
-    from ..data.rendering import PointCloudRenderer
+    from ..pseudo_demos.generation import GenerationConfig, generate_task
+    from ..pseudo_demos.rendering import PointCloudRenderer
 
     config = GenerationConfig(seed=seed, demos_per_task=2)
     frames = demos = 0
@@ -87,8 +87,8 @@ def _bench_end_to_end(tasks: int, tasks_per_shard: int, workers: int, repeats: i
     import tempfile
     from pathlib import Path
 
-    from ..data.generation import GenerationConfig, generate_dataset, shard_dir, shard_ranges, shard_repo_id
-    from ..data.merge import merge_parallel, merge_serial
+    from ..pseudo_demos.generation import GenerationConfig, generate_dataset, shard_dir, shard_ranges, shard_repo_id
+    from ..pseudo_demos.merge import merge_parallel, merge_serial
 
     end_to_end: dict[int, list[float]] = {1: [], workers: []}
     merges: dict[str, list[float]] = {"serial": [], "parallel_one_process": [], "parallel_pool": []}

@@ -7,9 +7,9 @@ import dataclasses
 import sys
 
 from ..config_io import load_config
-from ..data.generation import GenerationConfig, generate_dataset
-from ..data.pseudo_tasks import FAMILIES
-from ..data.rendering import CLOUD_SOURCES
+from ..pseudo_demos.generation import GenerationConfig, generate_dataset
+from ..pseudo_demos.rendering import CLOUD_SOURCES
+from ..pseudo_demos.tasks import FAMILIES
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.preview:
         from lerobot.datasets import LeRobotDataset
 
-        from ..data.preview import draw_preview, load_preview_episodes
+        from ..pseudo_demos.preview import draw_preview, load_preview_episodes
 
         dataset = LeRobotDataset(config.repo_id, root=out)
         picture = draw_preview(load_preview_episodes(dataset, num_tasks=2, demos_per_task=3), args.preview)

@@ -4,7 +4,7 @@ Every ``OUTPUT_DIR/checkpoints/<step>/pretrained_model`` of a ``lerobot-train`` 
 sample of frames of the training dataset (training loss) and of a held-out pseudo-task dataset (validation loss), and on
 the held-out frames with every frame's demonstrations swapped for another pseudo-task's (the context swap); the
 held-out translation and rotation losses are drawn against the prior-only level. See
-:mod:`lerobot_instant_policy.training.loss_curve`. Results are cached per checkpoint in the JSON file, so running it
+:mod:`lerobot_instant_policy.evaluation.loss_curve`. Results are cached per checkpoint in the JSON file, so running it
 again after more checkpoints only evaluates the new ones.
 """
 
@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from ..data.demonstrations import DemonstrationError
-from ..training.loss_curve import (
+from ..evaluation.loss_curve import (
     LossCurveCache,
     LossCurveError,
     checkpoint_config,

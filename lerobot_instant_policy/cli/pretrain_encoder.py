@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from ..model.geometry_encoder import encoder_preset
-    from ..training.encoder_pretraining import PretrainConfig
+    from ..pretraining.encoder_pretraining import PretrainConfig
 
     expected = encoder_preset(args.preset) if args.preset else None
     config = PretrainConfig(
@@ -62,20 +62,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         if args.out is not None:
-            from ..training.encoder_pretraining import pretrain
+            from ..pretraining.encoder_pretraining import pretrain
 
             result = pretrain(config, args.out, resume=not args.no_resume, progress=not args.no_progress)
             print(json.dumps({"out": str(args.out), **result["held_out"]}, indent=2))
         elif args.eval is not None:
             from ..model.occupancy import load_occupancy_network
-            from ..training.encoder_pretraining import evaluate, load_sets
+            from ..pretraining.encoder_pretraining import evaluate, load_sets
 
             network = load_occupancy_network(args.eval, expected)
             _, eval_set = load_sets(config, train=False)
             print(json.dumps({"weights": str(args.eval), "split": "held_out", **evaluate(network, eval_set)}, indent=2))
         else:
             from ..model.occupancy import load_occupancy_network
-            from ..training.occupancy_picture import draw_occupancy
+            from ..pretraining.occupancy_picture import draw_occupancy
 
             summary = draw_occupancy(load_occupancy_network(args.show, expected), args.object, args.png)
             print(json.dumps(summary, indent=2))

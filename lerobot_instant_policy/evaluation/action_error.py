@@ -44,7 +44,7 @@ from ..configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_INFERENCE_
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
 from ..modeling_instant_policy import InstantPolicyPolicy
-from ..training.loss_curve import check_pseudo_demo_root, load_policy
+from .loss_curve import check_pseudo_demo_root, load_policy
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
 

@@ -63,7 +63,7 @@ def transform_points(T: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
 
 @full_precision()
 def fit_rigid(source: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The rigid transform that best maps points ``source (..., K, 3)`` onto ``target (..., K, 3)`` in the least-squares
+    """The rigid transform that best maps points ``source (..., Q, 3)`` onto ``target (..., Q, 3)`` in the least-squares
     sense (Kabsch / Arun: an SVD of the 3 × 3 cross-covariance, in float64, with the reflection removed).
 
     Returns ``R (..., 3, 3)`` and ``t (..., 3)`` with ``target ≈ R source + t``, in ``source``'s dtype: the solution of

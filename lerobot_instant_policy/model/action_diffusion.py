@@ -49,7 +49,7 @@ class ActionDiffusion:
 
     Args:
         horizon: ``T``, the number of predicted actions.
-        keypoints: ``(K, 3)`` gripper keypoints in the EE frame (metres).
+        keypoints: ``(G, 3)`` gripper keypoints in the EE frame (metres).
         num_train_timesteps: diffusion steps of the training schedule.
         max_translation: metres per action step (action ``j`` is bounded by ``j · max_translation`` per axis).
         max_rotation: radians per action step (rotation-vector components bounded by ``j · max_rotation``).
@@ -124,13 +124,13 @@ class ActionDiffusion:
 
     @full_precision()
     def action_keypoints(self, T_ee_actions: torch.Tensor) -> torch.Tensor:
-        """Gripper keypoints of each action in the EE frame: ``(B, T, 4, 4)`` → ``(B, T, K, 3)``."""
+        """Gripper keypoints of each action in the EE frame: ``(B, T, 4, 4)`` → ``(B, T, G, 3)``."""
         keypoints = self.keypoints.to(dtype=T_ee_actions.dtype, device=T_ee_actions.device)
         return keypoints @ T_ee_actions[..., :3, :3].transpose(-1, -2) + T_ee_actions[..., None, :3, 3]
 
     @full_precision()
     def flow_targets(self, T_clean: torch.Tensor, T_noisy: torch.Tensor) -> torch.Tensor:
-        """Normalised flows from the noisy to the clean keypoints, ``(B, T, K, 6)``: translation, then rotation part."""
+        """Normalised flows from the noisy to the clean keypoints, ``(B, T, G, 6)``: translation, then rotation part."""
         keypoints = self.keypoints.to(dtype=T_clean.dtype, device=T_clean.device)
         translation = (T_clean[..., :3, 3] - T_noisy[..., :3, 3])[:, :, None].expand(-1, -1, len(keypoints), -1)
         rotation = keypoints @ (T_clean[..., :3, :3] - T_noisy[..., :3, :3]).transpose(-1, -2)
@@ -140,7 +140,7 @@ class ActionDiffusion:
 
     @full_precision()
     def predicted_clean_actions(self, T_noisy: torch.Tensor, flows: torch.Tensor) -> torch.Tensor:
-        """Apply predicted normalised flows ``(B, T, K, 6)`` to the keypoints of ``T_noisy (B, T, 4, 4)``.
+        """Apply predicted normalised flows ``(B, T, G, 6)`` to the keypoints of ``T_noisy (B, T, 4, 4)``.
 
         The SE(3) update that best moves the noisy keypoints onto the predicted ones (SVD) is composed with the
         noisy action: ``T̂⁰_EA = T_update · Tᵏ_EA`` (both in the EE frame).
@@ -163,7 +163,7 @@ class ActionDiffusion:
         """DDIM from Gaussian noise to a clean diffusion variable ``(B, T, 7)``.
 
         Args:
-            predict: ``(T_ee_actions (B, T, 4, 4), gripper (B, T) in [−1, 1], timesteps (B,)) → (B, T, K, 7)``, the
+            predict: ``(T_ee_actions (B, T, 4, 4), gripper (B, T) in [−1, 1], timesteps (B,)) → (B, T, G, 7)``, the
                 network's normalised flows and gripper predictions at each action keypoint.
             num_inference_steps: K, between 1 and ``num_train_timesteps``.
         """

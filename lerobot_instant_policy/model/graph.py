@@ -21,7 +21,7 @@ current observation live in different worlds, so demo → current edges carry ``
 frame. Every attribute is relative, so moving a whole world rigidly changes none of them.
 
 Connectivity depends only on the sizes (B, N, L, T, M) and is built once per size and device (``lru_cache``).
-Node ``k`` of local graph ``g`` has index ``g · K + k`` (scene nodes ``g · M + m``); graphs are ordered sample-major:
+Node ``k`` of local graph ``g`` has index ``g · G + k`` (G gripper keypoints) (scene nodes ``g · M + m``); graphs are ordered sample-major:
 demo frame ``(b, n, l)`` is ``(b · N + n) · L + l``, action frame ``(b, i)`` is ``b · T + i``, current frame ``b``.
 """
 
@@ -179,7 +179,7 @@ def transform_attr(
         src_frames: ``(F_src, 4, 4)`` poses of the source frames in a common frame (the world or the EE frame).
         dst_frames: ``(F_dst, 4, 4)`` poses of the destination frames in the same frame.
         store: the edge store of a graph built here (``src_frame``, ``dst_frame``, ``dst_keypoint`` per edge).
-        keypoints: ``(K, 3)`` gripper keypoints.
+        keypoints: ``(G, 3)`` gripper keypoints.
     """
     T_src = src_frames[store.src_frame]
     T_dst = dst_frames[store.dst_frame]
@@ -205,7 +205,7 @@ def dense_local_masks(num_scene: int, num_keypoints: int, device: torch.device) 
 @functools.lru_cache(maxsize=32)
 def dense_action_masks(horizon: int, num_keypoints: int, device: torch.device) -> dict[EdgeType, torch.Tensor | None]:
     """:func:`action_graph`'s connectivity in the dense layout: current → every action node, action ``i`` → action
-    ``j ≠ i`` (node ``i · K + k``)."""
+    ``j ≠ i`` (node ``i · G + k``)."""
     other_frame = ~torch.eye(horizon, dtype=torch.bool, device=device)
     return {
         CURRENT_TO_ACTION: None,
@@ -230,11 +230,11 @@ def dense_transform_attr(
 
     Args:
         src_frames: ``(B, F_src, 4, 4)`` and ``dst_frames``: ``(B, F_dst, 4, 4)``, poses in a common frame per row.
-        keypoints: ``(K, 3)`` gripper keypoints.
+        keypoints: ``(G, 3)`` gripper keypoints.
 
     Returns:
-        ``(B, F_src, F_dst · K, 2 E)``: the attribute of the edges from every keypoint of source frame ``i`` to
-        keypoint ``k_d`` of destination frame ``j`` at ``[:, i, j · K + k_d]``, as :func:`transform_attr` gives it on
+        ``(B, F_src, F_dst · G, 2 E)``: the attribute of the edges from every keypoint of source frame ``i`` to
+        keypoint ``k_d`` of destination frame ``j`` at ``[:, i, j · G + k_d]``, as :func:`transform_attr` gives it on
         each of those edges; shared by the ``K`` source nodes of frame ``i`` (:func:`~.dense_attention.dense_attention`),
         destination-major in memory (the layout it reads).
     """
@@ -242,7 +242,7 @@ def dense_transform_attr(
     R_src_t = src_frames[:, None, :, :3, :3].transpose(-1, -2)  # (B, 1, F_src, 3, 3)
     R = R_src_t @ dst_frames[:, :, None, :3, :3]  # (B, F_dst, F_src, 3, 3)
     t = (R_src_t @ (dst_frames[:, :, None, :3, 3] - src_frames[:, None, :, :3, 3])[..., None]).squeeze(-1)
-    displacement = (keypoints @ R.transpose(-1, -2) - keypoints).transpose(2, 3)  # (B, F_dst, K, F_src, 3): R k − k
+    displacement = (keypoints @ R.transpose(-1, -2) - keypoints).transpose(2, 3)  # (B, F_dst, G, F_src, 3): R k − k
     translation = sinusoidal_encoding(t, num_frequencies)[:, :, None].expand(-1, -1, num_keypoints, -1, -1)
     attr = torch.cat([translation, sinusoidal_encoding(displacement, num_frequencies)], dim=-1)
     return attr.view(batch, num_dst * num_keypoints, num_src, attr.shape[-1]).transpose(1, 2)

@@ -426,7 +426,7 @@ class InstantPolicyNetwork(nn.Module):
             timesteps: ``(B,)`` diffusion timesteps in ``0 … num_train_timesteps − 1``.
 
         Returns:
-            ``(B, T, K, 7)``: translation flow (3) and rotation flow (3), normalised as in
+            ``(B, T, G, 7)``: translation flow (3) and rotation flow (3), normalised as in
             :meth:`ActionDiffusion.flow_targets`, then the logit of the clean gripper command being "open".
         """
         batch, horizon = context.batch_size, self.config.horizon
@@ -515,7 +515,7 @@ class InstantPolicyNetwork(nn.Module):
         flow_target = self.diffusion.flow_targets(T_clean, T_noisy)
         prediction = self.denoise(context, T_noisy, gripper_noisy, timesteps)
         weights = self.diffusion.loss_weights(timesteps, self.config.flow_loss_weighting).to(prediction.dtype)
-        squared = (prediction[..., :FLOW_DIM] - flow_target).square()  # (B, T, K, 6)
+        squared = (prediction[..., :FLOW_DIM] - flow_target).square()  # (B, T, G, 6)
         translation = (weights * squared[..., :3].mean(dim=(1, 2, 3))).mean()
         rotation = (weights * squared[..., 3:].mean(dim=(1, 2, 3))).mean()
         gripper_open = (clean[..., 6:7] > 0).to(prediction.dtype).expand_as(prediction[..., 6])

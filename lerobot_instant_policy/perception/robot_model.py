@@ -59,7 +59,7 @@ class RobotModel:
         return pose_from_pos_quat(np.asarray(state[4]), np.asarray(state[5]))
 
     def surface_points(self, joint_positions: np.ndarray) -> np.ndarray:
-        """Samples ``(K, 3)`` of every link's collision surface, world frame, at ``joint_positions (J,)``."""
+        """Samples ``(S, 3)`` of every link's collision surface, world frame, at ``joint_positions (J,)``."""
         self._set_joints(joint_positions)
         posed = []
         for link, samples in self._link_samples:

@@ -31,15 +31,15 @@ import pybullet
 from scipy.spatial.transform import Rotation
 
 from ..contract import NUM_POINTS, POSE_GRIPPER_SHAPE, poses_from_vectors, vectors_from_poses
-from ..data.rendering import (
+from ..geometry.sampling import resample_points
+from ..geometry.se3 import make_pose, pose_to_pos_quat
+from ..pseudo_demos.rendering import (
     CameraConfig,
     camera_projection_matrix,
     camera_view_matrix,
     default_cameras,
     render_segmented_points,
 )
-from ..geometry.sampling import resample_points
-from ..geometry.se3 import make_pose, pose_to_pos_quat
 from .configuration_bullet_tabletop import OBS_TYPES
 from .demonstrator import interpolate_waypoints
 from .robot import PandaRobot, RobotConfig

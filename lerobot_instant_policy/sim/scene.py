@@ -145,7 +145,7 @@ class Scene:
         return body
 
     def object_corners(self) -> np.ndarray:
-        """Corners ``(K, 3)`` (world frame) of boxes that bound every task object (one box per link)."""
+        """Corners ``(C, 3)`` (world frame) of boxes that bound every task object (one box per link)."""
         corners = []
         for body in self.object_bodies:
             if body in self._marker_radius:

@@ -1,2 +1,2 @@
-"""Training loops and training measurements that join data and model: the geometry encoder's occupancy pretraining
-and the instant_policy training curve (loss per checkpoint on training and held-out pseudo-tasks)."""
+"""Training the policy beyond one ``lerobot-train`` call: ``rounds`` trains on pseudo-demonstrations generated while
+training runs, round after round (``lerobot-ip-train-rounds``, ``make train-gpu``)."""

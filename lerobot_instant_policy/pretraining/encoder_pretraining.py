@@ -20,9 +20,9 @@ import roma
 import torch
 from tqdm import tqdm
 
-from ..data.occupancy import OccupancyDataConfig, OccupancySet, cached_occupancy_set
 from ..model.geometry_encoder import encoder_preset
 from ..model.occupancy import OccupancyNetwork, save_occupancy_network
+from .occupancy_data import OccupancyDataConfig, OccupancySet, cached_occupancy_set
 
 EVAL_SEED = 1
 

@@ -42,7 +42,7 @@ def merge_serial(roots: list[Path], repo_ids: list[str], repo_id: str, root: Pat
     import pyarrow.parquet as pq
     from lerobot.datasets.aggregate import aggregate_datasets
 
-    from .lerobot_format import keep_array_types_while_aggregating
+    from ..data.lerobot_format import keep_array_types_while_aggregating
 
     schema = pq.read_schema(next((Path(roots[0]) / "data").rglob("*.parquet")))
     with keep_array_types_while_aggregating(schema):

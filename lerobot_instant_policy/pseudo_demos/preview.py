@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .lerobot_format import read_episode
+from ..data.lerobot_format import read_episode
 
 
 def draw_preview(episodes: list[list[dict]], path: str | Path, frames_per_demo: int = 4) -> Path:

@@ -7,14 +7,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..data.objects import load_object
-from ..data.occupancy import OccupancyDataConfig, dense_surface, sample_queries
-from ..data.rendering import PointCloudRenderer
 from ..geometry.sampling import resample_indices
 from ..geometry.se3 import look_rotation, make_pose, transform_points
 from ..model.occupancy import OccupancyNetwork
 from ..model.point_ops import nearest_centroid
+from ..pseudo_demos.objects import load_object
+from ..pseudo_demos.rendering import PointCloudRenderer
 from .encoder_pretraining import classification_metrics
+from .occupancy_data import OccupancyDataConfig, dense_surface, sample_queries
 
 GRID_RESOLUTION = 48
 

@@ -39,8 +39,8 @@ import torch
 from ..contract import ACTION_KEY
 from ..data.context_bank import ContextBank
 from ..data.demonstrations import check_dataset_features
-from ..data.generation import DEMOS_FILE, TASKS_FILE
 from ..modeling_instant_policy import InstantPolicyPolicy
+from ..pseudo_demos.generation import DEMOS_FILE, TASKS_FILE
 
 POLICY_TYPE = "instant_policy"
 LOSS_PARTS = ("loss", "translation", "rotation", "gripper")

@@ -16,8 +16,8 @@ from ..contract import vectors_from_poses
 from ..geometry.sampling import resample_indices
 from ..geometry.se3 import invert, look_rotation, make_pose, transform_points
 from .objects import ObjectModel
-from .pseudo_tasks import GRASP_REACH, PseudoTask, Waypoint
 from .rendering import PointCloudRenderer
+from .tasks import GRASP_REACH, PseudoTask, Waypoint
 from .trajectory import (
     Step,
     add_disturbance,

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .lerobot_format import DEFAULT_FPS, create_dataset, write_episode
+from ..data.lerobot_format import DEFAULT_FPS, create_dataset, write_episode
 from .merge import merge_parallel
 from .objects import load_object, object_ids, validate_object_id
-from .pseudo_demos import DemoConfig, GenerationError, hold_signature, make_demo
-from .pseudo_tasks import FAMILIES, PseudoTask, sample_pseudo_task
 from .rendering import PointCloudRenderer, RenderConfig
+from .replay import DemoConfig, GenerationError, hold_signature, make_demo
+from .tasks import FAMILIES, PseudoTask, sample_pseudo_task
 
 SHARDS_DIR = ".shards"
 PLAN_FILE = "plan.json"

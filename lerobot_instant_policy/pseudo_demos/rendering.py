@@ -202,7 +202,7 @@ def render_segmented_points(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Back-project one camera's labelled pixels in pybullet client ``client`` to world points.
 
-    Only the crop of the image that ``corners_world (K, 3)`` (corners of the objects' bounding boxes) can cover
+    Only the crop of the image that ``corners_world (C, 3)`` (corners of the objects' bounding boxes) can cover
     is rendered, at most ``max_crop_pixels`` wide and high. ``label_of_body`` maps a segmentation body id to a
     label (its last entry, −1, serves the background and every unlabelled body). ``view`` and ``projection``
     are ``(4, 4)`` (``camera_view_matrix`` / ``camera_projection_matrix``).

@@ -23,9 +23,9 @@ from scipy.spatial import cKDTree
 
 from ..geometry.sampling import resample_indices
 from ..geometry.se3 import transform_points
-from .objects import load_object, object_ids
-from .pseudo_demos import DemoConfig, sample_layout
-from .rendering import PointCloudRenderer
+from ..pseudo_demos.objects import load_object, object_ids
+from ..pseudo_demos.rendering import PointCloudRenderer
+from ..pseudo_demos.replay import DemoConfig, sample_layout
 
 
 @dataclass(frozen=True)
