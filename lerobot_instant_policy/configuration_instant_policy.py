@@ -102,7 +102,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     encoder in its ``model.safetensors``, so the weights file is only read when a policy is built from scratch.
     ``reencode_action_clouds``: re-encode the live cloud in every action frame at every denoising step (the
     paper's choice) rather than moving the encoded scene nodes rigidly into the action frames.
-    ``dense_attention``: run σ's graph-transformer layers on the local graphs in a dense batched layout (the
+    ``dense_attention``: run the graph-transformer layers of σ, φ and ψ in a dense batched layout (the
     same weights and outputs as the torch-geometric ``TransformerConv`` layers, which ``False`` runs instead).
     ``action_scene_graph``: the action gripper nodes run σ on the scene seen from their noisy poses (the paper's
     graph); ``False`` is an ablation (issue 11) in which they see the scene only through the current nodes, so

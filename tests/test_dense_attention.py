@@ -1,4 +1,4 @@
-"""The dense fast path of σ and ψ gives the outputs and gradients of the torch-geometric reference layers."""
+"""The dense fast path of σ, φ and ψ gives the outputs and gradients of the torch-geometric reference layers."""
 
 from __future__ import annotations
 
@@ -98,3 +98,31 @@ def test_network_dense_and_reference_paths_agree():
     assert len(dense_grads) == len(reference_grads) > 10
     for dense_grad, reference_grad in zip(dense_grads, reference_grads, strict=True):
         torch.testing.assert_close(dense_grad, reference_grad, atol=1e-4, rtol=1e-3)
+
+
+@pytest.mark.parametrize("num_demos, demo_length", [(1, 2), (3, 4)])
+def test_dense_context_network_is_the_reference_on_demo_and_current_nodes(num_demos, demo_length):
+    """φ alone: the same current gripper nodes and the same gradients (demo and current nodes, φ's weights) on the
+    dense layout as on torch-geometric's layers, including the last waypoint, which receives no time edge."""
+    generator = torch.Generator().manual_seed(3)
+    torch.manual_seed(0)
+    config = InstantPolicyConfig(dense_attention=True, pretrained_encoder=False, device="cpu")
+    network = InstantPolicyNetwork(config)
+    batch, hidden = 2, (network.num_keypoints, config.hidden_dim)
+    T_world_ee = _random_poses(batch, num_demos, demo_length, generator=generator)
+    demo = torch.randn(batch, num_demos, demo_length, *hidden, generator=generator, requires_grad=True)
+    current = torch.randn(batch, *hidden, generator=generator, requires_grad=True)
+    results = []
+    for dense in (True, False):
+        network.config = dataclasses.replace(config, dense_attention=dense)
+        out = network._context_features(T_world_ee, demo, current)
+        parameters = list(network.context_network.parameters())
+        grads = torch.autograd.grad(out.square().sum(), [demo, current, *parameters], allow_unused=True)
+        results.append((out.detach(), grads))
+    (dense_out, dense_grads), (reference_out, reference_grads) = results
+    torch.testing.assert_close(dense_out, reference_out, atol=1e-5, rtol=1e-5)
+    assert sum(grad is not None for grad in dense_grads) > 10
+    for dense_grad, reference_grad in zip(dense_grads, reference_grads, strict=True):
+        assert (dense_grad is None) == (reference_grad is None)
+        if dense_grad is not None:
+            torch.testing.assert_close(dense_grad, reference_grad, atol=1e-4, rtol=1e-3)

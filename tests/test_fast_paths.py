@@ -22,7 +22,7 @@ from lerobot_instant_policy.model.graph import (
     dense_local_masks,
     dense_position_attr,
 )
-from lerobot_instant_policy.model.graph_transformer import HeteroGraphTransformer
+from lerobot_instant_policy.model.graph_transformer import HeteroGraphTransformer, fixed_weights
 from lerobot_instant_policy.model.point_ops import group_max
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
@@ -95,6 +95,24 @@ def test_stacked_projections_give_every_conv_its_own(expanded):
     assert len(fast_grads) == len(reference_grads) > 10
     for fast_grad, reference_grad in zip(fast_grads, reference_grads, strict=True):
         torch.testing.assert_close(fast_grad, reference_grad, atol=1e-4, rtol=1e-4)
+
+
+def test_weights_stacked_once_per_fixed_weights_block_give_the_same_outputs():
+    """Inside :func:`fixed_weights` the stacked projections are reused across calls; after the block a weight change
+    is seen again."""
+    generator = torch.Generator().manual_seed(6)
+    network = HeteroGraphTransformer(EDGE_DIMS, [GRIPPER], num_layers=2, hidden_dim=16, num_heads=2, mlp_ratio=2)
+    x, attr, masks = _local_inputs(4, generator)
+    with torch.no_grad():
+        reference = network.forward_dense(x, attr, masks)[GRIPPER]
+        with fixed_weights(network):
+            first, second = (network.forward_dense(x, attr, masks)[GRIPPER] for _ in range(2))
+        torch.testing.assert_close(first, reference, atol=0, rtol=0)
+        torch.testing.assert_close(second, reference, atol=0, rtol=0)
+        conv = network.layers[0].attention.convs[SCENE_TO_GRIPPER]
+        conv.lin_query.weight.add_(0.5)
+        changed = network.forward_dense(x, attr, masks)[GRIPPER]
+    assert not torch.allclose(changed, reference)
 
 
 def test_attributes_cast_once_under_autocast_give_the_same_outputs(monkeypatch):

@@ -213,6 +213,54 @@ def dense_action_masks(horizon: int, num_keypoints: int, device: torch.device) -
     }
 
 
+class DenseLayout:
+    """How one edge type's ``G`` graphs of the dense layout are read from its node types' tensors: as they are,
+    ``(G, n, ·)`` (σ's local graphs, ψ's graph per sample)."""
+
+    def sources(self, x: torch.Tensor) -> torch.Tensor:
+        """The source node type's tensor → ``(G, S, ·)``."""
+        return x
+
+    def destinations(self, x: torch.Tensor) -> torch.Tensor:
+        """The destination node type's tensor → ``(G, D, ·)``."""
+        return x
+
+    def scatter(self, update: torch.Tensor, destination: torch.Tensor) -> torch.Tensor:
+        """The attention's ``(G, D, ·)`` → the layout of the destination node type's tensor ``destination``."""
+        return update
+
+
+class NextWaypointLayout(DenseLayout):
+    """φ's time edges in the dense layout: demo nodes ``(B, N, L, G, ·)``; every keypoint of waypoint ``l + 1`` →
+    every keypoint of waypoint ``l`` of the same demonstration is one graph of ``G`` sources and ``G`` destinations
+    (``B · N · (L − 1)`` graphs). The last waypoint receives no time edge: its attention is zero, as the
+    torch-geometric layer's sum over no edges."""
+
+    def sources(self, x: torch.Tensor) -> torch.Tensor:
+        return x[:, :, 1:].flatten(0, 2)
+
+    def destinations(self, x: torch.Tensor) -> torch.Tensor:
+        return x[:, :, :-1].flatten(0, 2)
+
+    def scatter(self, update: torch.Tensor, destination: torch.Tensor) -> torch.Tensor:
+        batch, num_demos, demo_length = destination.shape[:3]
+        update = update.view(batch, num_demos, demo_length - 1, *update.shape[1:])
+        return torch.nn.functional.pad(update, (0, 0, 0, 0, 0, 1))
+
+
+class AllWaypointsLayout(DenseLayout):
+    """φ's demo → current edges in the dense layout: one graph per sample, sources the demo nodes ``(B, N, L, G, ·)``
+    read as ``(B, N · L · G, ·)`` (node ``(n · L + l) · G + k``), destinations the current nodes ``(B, G, ·)``."""
+
+    def sources(self, x: torch.Tensor) -> torch.Tensor:
+        return x.flatten(1, 3)
+
+
+def dense_context_layouts() -> dict[EdgeType, DenseLayout]:
+    """:func:`context_graph`'s connectivity in the dense layout: every edge type's graphs (no mask needed)."""
+    return {DEMO_TIME: NextWaypointLayout(), DEMO_TO_CURRENT: AllWaypointsLayout()}
+
+
 def dense_position_attr(src_positions: torch.Tensor, dst_positions: torch.Tensor, num_frequencies: int) -> torch.Tensor:
     """:func:`position_attr` of every node pair in the dense layout: ``(G, S, 3)``, ``(G, D, 3)`` →
     ``(G, S, D, ·)``, ``enc(p_dst − p_src)`` at ``[:, src, dst]``, destination-major in memory (the layout
@@ -251,3 +299,11 @@ def dense_transform_attr(
 def keypoint_offset_attr(store, keypoints: torch.Tensor, num_frequencies: int) -> torch.Tensor:
     """``enc(k_dst − k_src)`` per edge, both keypoints in the gripper frame (edges between different worlds)."""
     return sinusoidal_encoding(keypoints[store.dst_keypoint] - keypoints[store.src_keypoint], num_frequencies)
+
+
+def dense_keypoint_offset_attr(keypoints: torch.Tensor, num_frames: int, num_frequencies: int) -> torch.Tensor:
+    """:func:`keypoint_offset_attr` of φ's demo → current edges in the dense layout of :class:`AllWaypointsLayout`:
+    keypoints ``(G, 3)`` → ``(1, F · G, G, ·)``, ``enc(k_dst − k_src)`` at ``[0, f · G + k_src, k_dst]`` for each of
+    the ``F = N · L`` demo frames, destination-major in memory."""
+    offsets = keypoints[None, :, None, :] - keypoints[None, None, :, :]  # (1, G_dst, G_src, 3)
+    return sinusoidal_encoding(offsets, num_frequencies).repeat(1, 1, num_frames, 1).transpose(1, 2)

@@ -6,7 +6,8 @@ applies ``LayerNorm(x + attention)`` and ``LayerNorm(h + MLP(h))`` per node type
 a layer keep their features.
 
 ``forward_dense`` runs the same layers on graphs whose every edge type joins all source nodes of a graph to all its
-destination nodes (σ's local graphs), in a dense batched layout (:mod:`.dense_attention`): the same weights and
+destination nodes (σ's local graphs, ψ's graph; φ's graph through a :class:`~.graph.DenseLayout` per edge type that
+reads its node tensors as such graphs), in a dense batched layout (:mod:`.dense_attention`): the same weights and
 outputs, without PyG's scatter operations. There, all the convs' projections that read one node type (query and skip
 where it is the destination, key and value where it is the source) are one matrix product with their weights stacked,
 done once per row when every graph holds the same nodes (an input expanded along the graphs).
@@ -14,15 +15,18 @@ done once per row when every graph holds the same nodes (an input expanded along
 
 from __future__ import annotations
 
+import contextlib
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 
 import torch
 from torch import nn
 from torch_geometric.nn import HeteroConv, TransformerConv
 
 from .dense_attention import dense_attention
-from .graph import EdgeType
+from .graph import DenseLayout, EdgeType
+
+_AS_GIVEN = DenseLayout()
 
 Projection = tuple[EdgeType, str]  # (edge type, "query" | "key" | "value" | "skip"): a conv's ``lin_<role>``
 
@@ -67,6 +71,7 @@ class HeteroGraphTransformerLayer(nn.Module):
         )
         self.mlp_norm = nn.ModuleDict({node: nn.LayerNorm(hidden_dim) for node in destinations})
         self.projections = projection_plan(edge_dims)
+        self._stacked: dict[str, tuple[torch.Tensor, torch.Tensor]] | None = None  # see fixed_weights
 
     def forward(
         self,
@@ -81,36 +86,50 @@ class HeteroGraphTransformerLayer(nn.Module):
         x_dict: dict[str, torch.Tensor],
         edge_attr_dict: dict[EdgeType, torch.Tensor],
         mask_dict: Mapping[EdgeType, torch.Tensor | None],
+        layout_dict: Mapping[EdgeType, DenseLayout] | None = None,
     ) -> dict[str, torch.Tensor]:
-        """The layer on G complete graphs: ``x_dict`` node type → ``(G, n, H)``, ``edge_attr_dict`` edge type →
-        ``(G, n_src, n_dst, E)``, ``mask_dict`` edge type → ``(n_src, n_dst)`` bool or ``None`` (all edges)."""
+        """The layer on G complete graphs per edge type: ``x_dict`` node type → ``(G, n, H)``, or any ``(..., H)``
+        that the edge type's :class:`~.graph.DenseLayout` in ``layout_dict`` reads as ``(G, n, H)`` (absent: as
+        given); ``edge_attr_dict`` edge type → ``(G, n_src / r, n_dst, E)`` (:func:`~.dense_attention.dense_attention`),
+        ``mask_dict`` edge type → ``(n_src, n_dst)`` bool or ``None`` (all edges)."""
+        layout_dict = layout_dict or {}
         projected = self._project(x_dict)
         attended: dict[str, torch.Tensor] = {}
         for edge_type, conv in self.attention.convs.items():
             destination = edge_type[2]
-            update = dense_attention(
-                projected[edge_type, "query"], projected[edge_type, "key"], projected[edge_type, "value"],
-                conv.lin_edge.weight, edge_attr_dict[edge_type], conv.heads, mask_dict[edge_type],
-            ) + projected[edge_type, "skip"]
+            layout = layout_dict.get(edge_type, _AS_GIVEN)
+            skip = projected[edge_type, "skip"]
+            update = layout.scatter(dense_attention(
+                layout.destinations(projected[edge_type, "query"]), layout.sources(projected[edge_type, "key"]),
+                layout.sources(projected[edge_type, "value"]), conv.lin_edge.weight, edge_attr_dict[edge_type],
+                conv.heads, mask_dict[edge_type],
+            ), skip) + skip
             attended[destination] = attended[destination] + update if destination in attended else update
         return self._update(x_dict, attended)
 
     def _project(self, x_dict: dict[str, torch.Tensor]) -> dict[Projection, torch.Tensor]:
         """Every projection of :attr:`projections`, one matrix product per node type: ``x_dict`` node type →
-        ``(G, n, H)`` gives ``(edge type, role)`` → ``(G, n, H)``. A node type expanded along the graphs (stride 0) is
-        projected once and expanded."""
+        ``(G, ..., H)`` gives ``(edge type, role)`` → ``(G, ..., H)``. A node type expanded along the graphs (stride 0)
+        is projected once and expanded."""
         projected: dict[Projection, torch.Tensor] = {}
         for node, plan in self.projections.items():
-            linears = [getattr(self.attention.convs[edge_type], f"lin_{role}") for edge_type, role in plan]
             x = x_dict[node]
             shared = x.stride(0) == 0
-            out = nn.functional.linear(
-                x[:1] if shared else x, torch.cat([linear.weight for linear in linears]),
-                torch.cat([linear.bias for linear in linears]),
-            )
-            chunks = out.expand(len(x), -1, -1).split([linear.out_channels for linear in linears], dim=-1)
+            out = nn.functional.linear(x[:1] if shared else x, *self._stacked_projection(node))
+            chunks = out.expand(*x.shape[:-1], out.shape[-1]).chunk(len(plan), dim=-1)
             projected.update(zip(plan, chunks))
         return projected
+
+    def _stacked_projection(self, node: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """The weights ``(P · H, H)`` and biases ``(P · H,)`` of the ``P`` projections that read ``node``, stacked in
+        the order of :attr:`projections`; stacked once per :func:`fixed_weights` block inside one."""
+        if self._stacked is not None and node in self._stacked:
+            return self._stacked[node]
+        linears = [getattr(self.attention.convs[edge_type], f"lin_{role}") for edge_type, role in self.projections[node]]
+        stacked = torch.cat([linear.weight for linear in linears]), torch.cat([linear.bias for linear in linears])
+        if self._stacked is not None:
+            self._stacked[node] = stacked
+        return stacked
 
     def _update(self, x_dict: dict[str, torch.Tensor], attended: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         out = dict(x_dict)
@@ -164,14 +183,29 @@ class HeteroGraphTransformer(nn.Module):
         x_dict: dict[str, torch.Tensor],
         edge_attr_dict: dict[EdgeType, torch.Tensor],
         mask_dict: Mapping[EdgeType, torch.Tensor | None],
+        layout_dict: Mapping[EdgeType, DenseLayout] | None = None,
     ) -> dict[str, torch.Tensor]:
         """:meth:`forward` on G complete graphs in the dense layout of :meth:`HeteroGraphTransformerLayer.forward_dense`.
         The attributes are laid out destination-major in memory (:mod:`.dense_attention`) and, under autocast, cast to
         its dtype once for every layer instead of at each of their matrix products (the same values)."""
         edge_attr_dict = {edge_type: _dense_attr_layout(attr) for edge_type, attr in edge_attr_dict.items()}
         for layer in self.layers:
-            x_dict = layer.forward_dense(x_dict, edge_attr_dict, mask_dict)
+            x_dict = layer.forward_dense(x_dict, edge_attr_dict, mask_dict, layout_dict)
         return {node: x_dict[node] for node in self.output_node_types}
+
+
+@contextlib.contextmanager
+def fixed_weights(module: nn.Module) -> Iterator[None]:
+    """A block in which the weights of ``module`` do not change (one DDIM sampling, without gradients): its graph
+    transformer layers stack each node type's projection weights once for the block instead of at every call."""
+    layers = [layer for layer in module.modules() if isinstance(layer, HeteroGraphTransformerLayer)]
+    for layer in layers:
+        layer._stacked = {}
+    try:
+        yield
+    finally:
+        for layer in layers:
+            layer._stacked = None
 
 
 def _dense_attr_layout(attr: torch.Tensor) -> torch.Tensor:

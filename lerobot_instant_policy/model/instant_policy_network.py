@@ -52,6 +52,8 @@ from .graph import (
     context_edge_dims,
     context_graph,
     dense_action_masks,
+    dense_context_layouts,
+    dense_keypoint_offset_attr,
     dense_local_masks,
     dense_position_attr,
     dense_transform_attr,
@@ -61,7 +63,7 @@ from .graph import (
     position_attr,
     transform_attr,
 )
-from .graph_transformer import HeteroGraphTransformer
+from .graph_transformer import HeteroGraphTransformer, fixed_weights
 
 if TYPE_CHECKING:  # the policy's config is handed in as it is (LeRobot's pattern); only its fields are read here
     from ..configuration_instant_policy import InstantPolicyConfig
@@ -390,24 +392,58 @@ class InstantPolicyNetwork(nn.Module):
             current = self._observation_gripper_features(scene_positions, scene_features, gripper, leading=(batch,))
             gripper_features = torch.cat([demo_waypoint_features.flatten(1, 2), current[:, None]], dim=1)
 
-        graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, points_world.device)
-        keypoints = self._keypoints(points_world)
-        demo_frames = demos.T_world_ee.reshape(-1, 4, 4)
+        demo_features = gripper_features[:, :-1].unflatten(1, (num_demos, demo_length))
+        return InstantPolicyContext(
+            current_gripper_features=self._context_features(demos.T_world_ee, demo_features, gripper_features[:, -1]),
+            points_ee=points_ee,
+            scene_positions_ee=scene_positions,
+            scene_features=scene_features,
+        )
+
+    def _context_features(
+        self, T_world_ee: torch.Tensor, demo_features: torch.Tensor, current_features: torch.Tensor
+    ) -> torch.Tensor:
+        """φ: demo waypoint poses ``(B, N, L, 4, 4)`` in their demonstration's world frame, demo gripper nodes
+        ``(B, N, L, G, H)`` and current gripper nodes ``(B, G, H)`` after σ → the current gripper nodes ``(B, G, H)``."""
+        if self.config.dense_attention:
+            return self._context_features_dense(T_world_ee, demo_features, current_features)
+        batch, num_demos, demo_length = T_world_ee.shape[:3]
+        graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, T_world_ee.device)
+        keypoints = self._keypoints(T_world_ee)
+        demo_frames = T_world_ee.reshape(-1, 4, 4)
         edge_attr = {
             DEMO_TIME: transform_attr(demo_frames, demo_frames, graph[DEMO_TIME], keypoints, self.config.num_frequencies),
             DEMO_TO_CURRENT: keypoint_offset_attr(graph[DEMO_TO_CURRENT], keypoints, self.config.num_frequencies),
         }
         x = {
-            DEMO: gripper_features[:, :-1].reshape(-1, gripper_features.shape[-1]),
-            CURRENT: gripper_features[:, -1].reshape(-1, gripper_features.shape[-1]),
+            DEMO: demo_features.reshape(-1, demo_features.shape[-1]),
+            CURRENT: current_features.reshape(-1, current_features.shape[-1]),
         }
         current = self.context_network(x, graph.edge_index_dict, edge_attr)[CURRENT]
-        return InstantPolicyContext(
-            current_gripper_features=current.view(batch, self.num_keypoints, -1),
-            points_ee=points_ee,
-            scene_positions_ee=scene_positions,
-            scene_features=scene_features,
-        )
+        return current.view(batch, self.num_keypoints, -1)
+
+    def _context_features_dense(
+        self, T_world_ee: torch.Tensor, demo_features: torch.Tensor, current_features: torch.Tensor
+    ) -> torch.Tensor:
+        """:meth:`_context_features` in the dense layout (:func:`~.graph.dense_context_layouts`): the time edges
+        ``l + 1 → l`` carry ``[enc(t), enc(R k − k)]`` of ``T_l+1,l`` once per source waypoint
+        (:func:`~.graph.dense_transform_attr` on the ``B · N · (L − 1)`` waypoint pairs), the demo → current edges
+        ``enc(k_dst − k_src)`` (:func:`~.graph.dense_keypoint_offset_attr`)."""
+        batch, num_demos, demo_length = T_world_ee.shape[:3]
+        keypoints = self._keypoints(T_world_ee)
+        frequencies = self.config.num_frequencies
+        edge_attr = {
+            DEMO_TIME: dense_transform_attr(
+                T_world_ee[:, :, 1:].reshape(-1, 1, 4, 4), T_world_ee[:, :, :-1].reshape(-1, 1, 4, 4), keypoints,
+                frequencies,
+            ),
+            DEMO_TO_CURRENT: dense_keypoint_offset_attr(keypoints, num_demos * demo_length, frequencies).expand(
+                batch, -1, -1, -1
+            ),
+        }
+        masks = {DEMO_TIME: None, DEMO_TO_CURRENT: None}
+        x = {DEMO: demo_features, CURRENT: current_features}
+        return self.context_network.forward_dense(x, edge_attr, masks, dense_context_layouts())[CURRENT]
 
     # ------------------------------------------------------------------ action part (every denoising step)
     def denoise(
@@ -542,13 +578,14 @@ class InstantPolicyNetwork(nn.Module):
             ``T_ee_actions (B, T, 4, 4)``: action poses in the current EE frame; ``gripper_open (B, T)`` in {0, 1}.
         """
         steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
-        sample = self.diffusion.sample(
-            lambda T_noisy, gripper, timesteps: self._denoise_to_values(context, T_noisy, gripper, timesteps),
-            context.batch_size,
-            steps,
-            generator=generator,
-            device=context.points_ee.device,
-            dtype=context.points_ee.dtype,
-        )
+        with fixed_weights(self):
+            sample = self.diffusion.sample(
+                lambda T_noisy, gripper, timesteps: self._denoise_to_values(context, T_noisy, gripper, timesteps),
+                context.batch_size,
+                steps,
+                generator=generator,
+                device=context.points_ee.device,
+                dtype=context.points_ee.dtype,
+            )
         T_ee_actions, gripper = self.diffusion.unnormalize(sample)
         return T_ee_actions, (gripper > 0).to(sample.dtype)
