@@ -174,7 +174,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         T_ee_actions = compose(invert_rigid(T_world_ee)[:, None], T_world_actions)
         return points_world, state, T_world_ee, T_ee_actions, action_gripper.clamp(0.0, 1.0)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None,
                              num_inference_steps: int | None = None, **kwargs) -> Tensor:
         """``(B, T, 8)`` absolute world-frame EE targets (xyz, quaternion xyzw with ``w ≥ 0``, gripper 1/0).
@@ -206,7 +206,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """The action ``(B, 8)`` to run now: the next of ``n_action_steps`` queued actions of the last prediction.
 
@@ -338,6 +338,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self.task_context(task)
         self.reset()
 
+    @torch.no_grad()
     def task_context(self, task: str) -> TaskContext:
         """The context of ``task`` with its tensors for the current weights: its demonstrations (handed in, or read
         from ``demo_repo_id`` on first use) through the training context's path, :class:`ContextEncoder`, and σ on

@@ -196,6 +196,27 @@ def test_loss_falls_when_overfitting_a_tiny_dataset(tiny_dataset):
     assert encoder.frame_encodings is not None and encoder.bank.points_world is None
 
 
+@pytest.mark.parametrize("dense_attention", [True, False])
+def test_a_policy_that_predicted_can_still_train(tiny_dataset, dense_attention):
+    """Inference runs in torch's inference mode; the graph connectivity it builds and caches (per size) must still
+    serve a training step of the same process."""
+    from lerobot_instant_policy.model import graph
+
+    for cached in (graph.local_graph, graph.context_graph, graph.action_graph, graph.dense_local_masks,
+                   graph.dense_action_masks):
+        cached.cache_clear()  # built first by the prediction below
+    torch.manual_seed(0)
+    config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, max_demos=2, dense_attention=dense_attention)
+    policy = InstantPolicyPolicy(config, dataset_meta=tiny_dataset.meta).eval()
+    policy.set_demonstrations(lift_demos(2))
+    policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(0))
+    policy.train()
+    batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=1, shuffle=False)))
+    loss, _ = policy.forward(batch)
+    loss.backward()
+    assert all(torch.isfinite(p.grad).all() for p in policy.get_optim_params() if p.grad is not None)
+
+
 def test_gripper_flip_probability_changes_the_current_gripper_state(tiny_dataset, monkeypatch):
     policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", gripper_flip_probability=1.0),
                                  dataset_meta=tiny_dataset.meta)

@@ -20,9 +20,10 @@ keypoint, i.e. the translation and the displacement that the rotation gives that
 current observation live in different worlds, so demo → current edges carry ``enc(k_dst − k_src)`` in the gripper
 frame. Every attribute is relative, so moving a whole world rigidly changes none of them.
 
-Connectivity depends only on the sizes (B, N, L, T, M) and is built once per size and device (``lru_cache``).
-Node ``k`` of local graph ``g`` has index ``g · G + k`` (G gripper keypoints) (scene nodes ``g · M + m``); graphs are ordered sample-major:
-demo frame ``(b, n, l)`` is ``(b · N + n) · L + l``, action frame ``(b, i)`` is ``b · T + i``, current frame ``b``.
+Connectivity depends only on the sizes (B, N, L, T, M) and is built once per size and device (``lru_cache``),
+never as inference tensors, so a graph first built at inference can serve training.
+Node ``k`` of local graph ``g`` has index ``g · G + k`` (G gripper keypoints; scene nodes ``g · M + m``); graphs are
+ordered sample-major: demo frame ``(b, n, l)`` is ``(b · N + n) · L + l``, action frame ``(b, i)`` is ``b · T + i``, current frame ``b``.
 """
 
 from __future__ import annotations
@@ -97,6 +98,7 @@ def _to(graph: HeteroData, device: torch.device) -> HeteroData:
 
 
 @functools.lru_cache(maxsize=32)
+@torch.inference_mode(False)
 def local_graph(num_graphs: int, num_scene: int, num_keypoints: int, device: torch.device) -> HeteroData:
     """Connectivity of ``num_graphs`` local graphs of ``num_scene`` scene and ``num_keypoints`` gripper nodes."""
     graph = HeteroData()
@@ -116,6 +118,7 @@ def local_graph(num_graphs: int, num_scene: int, num_keypoints: int, device: tor
 
 
 @functools.lru_cache(maxsize=32)
+@torch.inference_mode(False)
 def context_graph(
     batch_size: int, num_demos: int, demo_length: int, num_keypoints: int, device: torch.device
 ) -> HeteroData:
@@ -138,6 +141,7 @@ def context_graph(
 
 
 @functools.lru_cache(maxsize=32)
+@torch.inference_mode(False)
 def action_graph(batch_size: int, horizon: int, num_keypoints: int, device: torch.device) -> HeteroData:
     """Connectivity of ψ's graph: current → every action, action ``i`` → action ``j ≠ i``.
 
@@ -192,6 +196,7 @@ def transform_attr(
 
 
 @functools.lru_cache(maxsize=32)
+@torch.inference_mode(False)
 def dense_local_masks(num_scene: int, num_keypoints: int, device: torch.device) -> dict[EdgeType, torch.Tensor | None]:
     """:func:`local_graph`'s connectivity in the dense layout: edge type → ``(n_src, n_dst)`` bool (``None``: all
     pairs); no self loops."""
@@ -203,6 +208,7 @@ def dense_local_masks(num_scene: int, num_keypoints: int, device: torch.device) 
 
 
 @functools.lru_cache(maxsize=32)
+@torch.inference_mode(False)
 def dense_action_masks(horizon: int, num_keypoints: int, device: torch.device) -> dict[EdgeType, torch.Tensor | None]:
     """:func:`action_graph`'s connectivity in the dense layout: current → every action node, action ``i`` → action
     ``j ≠ i`` (node ``i · G + k``)."""
