@@ -40,7 +40,7 @@ from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
 from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
 from .geometry.rigid_torch import compose, invert_rigid
-from .model.instant_policy_network import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, DemoTensors, InstantPolicyNetwork
+from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
 from .model.occupancy import load_geometry_encoder
 
 logger = logging.getLogger(__name__)
@@ -300,7 +300,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         fingerprint = encoder_fingerprint(self.network.geometry_encoder, self.config.encoder_config.to_dict())
         encodings = load_frame_encodings(root, fingerprint)
         if encodings is None:
-            logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
+            logger.info("instant_policy: building the frozen encoder's frame encodings of %s (a cache of its older "
+                        "frames is extended, not rebuilt)", root)
             encodings = build_frame_encodings(
                 open_demo_dataset(repo_id, root), fingerprint, self._encode_frames, self._device()
             )
@@ -363,12 +364,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return task_context
 
     def _check_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int) -> None:
-        low, high = SUPPORTED_DEMOS
-        if not low <= len(demonstrations) <= high:
-            raise ValueError(f"number of demonstrations N={len(demonstrations)} is outside the supported {low}…{high}")
-        low, high = SUPPORTED_WAYPOINTS
-        if not low <= num_waypoints <= high:
-            raise ValueError(f"number of waypoints L={num_waypoints} is outside the supported {low}…{high}")
+        self.network.check_demo_size(len(demonstrations), num_waypoints)
         for index, demo in enumerate(demonstrations):
             if demo.points_world.shape[1] != self.config.num_points:
                 raise ValueError(
