@@ -300,8 +300,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         fingerprint = encoder_fingerprint(self.network.geometry_encoder, self.config.encoder_config.to_dict())
         encodings = load_frame_encodings(root, fingerprint)
         if encodings is None:
-            logger.info("instant_policy: building the frozen encoder's frame encodings of %s (a cache of its older "
-                        "frames is extended, not rebuilt)", root)
+            logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
             encodings = build_frame_encodings(
                 open_demo_dataset(repo_id, root), fingerprint, self._encode_frames, self._device()
             )
