@@ -107,6 +107,10 @@ class InstantPolicyConfig(PreTrainedConfig):
     ``action_scene_graph``: the action gripper nodes run σ on the scene seen from their noisy poses (the paper's
     graph); ``False`` is an ablation (issue 11) in which they see the scene only through the current nodes, so
     every path from the scene to an action passes the demonstrations' φ.
+    ``context_scene_edges``: φ's current gripper nodes also attend to the live scene nodes (edges scene → current,
+    ``enc(k − p)`` in the current EE frame), so that which part of the scene they read can depend on the
+    demonstrations; in the paper's graph (``False``) the scene is read only by σ, before any demonstration is seen,
+    and a summary of every object must then pass φ (issue 11).
 
     Training: with ``cache_frame_encodings`` the frozen encoder's output for every frame of the training dataset is
     computed once and stored beside the dataset (``frame_encodings``; rebuilt when the encoder or the dataset
@@ -153,6 +157,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     reencode_action_clouds: bool = True
     dense_attention: bool = True
     action_scene_graph: bool = True
+    context_scene_edges: bool = False
     cache_frame_encodings: bool = True
     flow_loss_weighting: str = "uniform"
 

@@ -9,11 +9,13 @@ The networks see three subgraphs, each a ``torch_geometric`` :class:`HeteroData`
   local graph (no self loops);
 - context (φ): node types ``demo`` and ``current`` (the gripper nodes of the demonstration and current local
   graphs); edges demo waypoint ``l+1`` → ``l`` (every keypoint pair) and every demo gripper node of a sample →
-  every current gripper node of that sample;
+  every current gripper node of that sample; with ``context_scene_edges`` also node type ``scene`` (the current
+  local graph's scene nodes) and edges scene → current, so that what the current nodes read of the live scene can
+  depend on the demonstrations (σ reads it before any context is seen);
 - action (ψ): node types ``current`` and ``action``; edges current → every action gripper node, and action ``i`` →
   action ``j`` for ``i ≠ j`` (every keypoint pair).
 
-Edge attributes: inside a local graph, ``enc(p_dst − p_src)`` (sin/cos at ``2⁰π … 2⁹π`` plus the raw vector).
+Edge attributes: inside a local graph (and φ's scene → current edges, in the current EE frame), ``enc(p_dst − p_src)`` (sin/cos at ``2⁰π … 2⁹π`` plus the raw vector).
 Between frames of one world (demo time edges, current → action, action → action), the attribute describes the
 relative transform ``T_src,dst = T_src⁻¹ T_dst = (R, t)``: ``[enc(t), enc(R k − k)]`` with ``k`` the destination's
 keypoint, i.e. the translation and the displacement that the rotation gives that keypoint. Demonstrations and the
@@ -42,6 +44,7 @@ SCENE_TO_GRIPPER = (SCENE, "local", GRIPPER)
 GRIPPER_TO_GRIPPER = (GRIPPER, "local", GRIPPER)
 DEMO_TIME = (DEMO, "time", DEMO)
 DEMO_TO_CURRENT = (DEMO, "context", CURRENT)
+SCENE_TO_CURRENT = (SCENE, "local", CURRENT)
 CURRENT_TO_ACTION = (CURRENT, "plan", ACTION)
 ACTION_TO_ACTION = (ACTION, "plan", ACTION)
 EdgeType = tuple[str, str, str]
@@ -61,8 +64,11 @@ def local_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
     return {edge_type: position_dim(num_frequencies) for edge_type in (SCENE_TO_SCENE, SCENE_TO_GRIPPER, GRIPPER_TO_GRIPPER)}
 
 
-def context_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
-    return {DEMO_TIME: transform_dim(num_frequencies), DEMO_TO_CURRENT: position_dim(num_frequencies)}
+def context_edge_dims(num_frequencies: int, scene_edges: bool = False) -> dict[EdgeType, int]:
+    dims = {DEMO_TIME: transform_dim(num_frequencies), DEMO_TO_CURRENT: position_dim(num_frequencies)}
+    if scene_edges:
+        dims[SCENE_TO_CURRENT] = position_dim(num_frequencies)
+    return dims
 
 
 def action_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
@@ -120,9 +126,10 @@ def local_graph(num_graphs: int, num_scene: int, num_keypoints: int, device: tor
 @functools.lru_cache(maxsize=32)
 @torch.inference_mode(False)
 def context_graph(
-    batch_size: int, num_demos: int, demo_length: int, num_keypoints: int, device: torch.device
+    batch_size: int, num_demos: int, demo_length: int, num_keypoints: int, device: torch.device, num_scene: int = 0
 ) -> HeteroData:
-    """Connectivity of φ's graph: demo waypoint ``l+1`` → ``l`` and all demo gripper nodes → current gripper nodes."""
+    """Connectivity of φ's graph: demo waypoint ``l+1`` → ``l`` and all demo gripper nodes → current gripper nodes;
+    with ``num_scene > 0`` also the ``num_scene`` scene nodes of each sample's current frame → its current nodes."""
     graph = HeteroData()
     graph[DEMO].num_nodes = batch_size * num_demos * demo_length * num_keypoints
     graph[CURRENT].num_nodes = batch_size * num_keypoints
@@ -137,6 +144,12 @@ def context_graph(
     )
     graph[DEMO_TO_CURRENT].src_keypoint = (src % num_keypoints).repeat(batch_size)
     graph[DEMO_TO_CURRENT].dst_keypoint = dst.repeat(batch_size)
+    if num_scene:
+        graph[SCENE].num_nodes = batch_size * num_scene
+        src, dst = _all_pairs(num_scene, num_keypoints)
+        graph[SCENE_TO_CURRENT].edge_index = torch.stack(
+            [(samples * num_scene + src).flatten(), (samples * num_keypoints + dst).flatten()]
+        )
     return _to(graph, device)
 
 
@@ -263,8 +276,9 @@ class AllWaypointsLayout(DenseLayout):
 
 
 def dense_context_layouts() -> dict[EdgeType, DenseLayout]:
-    """:func:`context_graph`'s connectivity in the dense layout: every edge type's graphs (no mask needed)."""
-    return {DEMO_TIME: NextWaypointLayout(), DEMO_TO_CURRENT: AllWaypointsLayout()}
+    """:func:`context_graph`'s connectivity in the dense layout: every edge type's graphs (no mask needed); the
+    scene → current edges are one graph per sample, scene ``(B, M, ·)`` → current ``(B, G, ·)``, as given."""
+    return {DEMO_TIME: NextWaypointLayout(), DEMO_TO_CURRENT: AllWaypointsLayout(), SCENE_TO_CURRENT: DenseLayout()}
 
 
 def dense_position_attr(src_positions: torch.Tensor, dst_positions: torch.Tensor, num_frequencies: int) -> torch.Tensor:

@@ -45,6 +45,7 @@ from .graph import (
     GRIPPER,
     GRIPPER_TO_GRIPPER,
     SCENE,
+    SCENE_TO_CURRENT,
     SCENE_TO_GRIPPER,
     SCENE_TO_SCENE,
     action_edge_dims,
@@ -146,7 +147,7 @@ class InstantPolicyNetwork(nn.Module):
             ``action_layers``, ``encoder_config``, ``num_points``, ``horizon``, ``gripper_keypoints``,
             ``num_frequencies``), the diffusion (``diffusion_train_steps``, ``inference_steps``, ``max_translation``,
             ``max_rotation_deg``, ``flow_loss_weighting``, ``gripper_loss_weight``) and the graph variants
-            (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``).
+            (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``, ``context_scene_edges``).
     """
 
     def __init__(self, config: InstantPolicyConfig):
@@ -172,7 +173,8 @@ class InstantPolicyNetwork(nn.Module):
             local_edge_dims(config.num_frequencies), [GRIPPER], num_layers=config.local_layers, **stage
         )
         self.context_network = HeteroGraphTransformer(
-            context_edge_dims(config.num_frequencies), [CURRENT], num_layers=config.context_layers, **stage
+            context_edge_dims(config.num_frequencies, config.context_scene_edges), [CURRENT],
+            num_layers=config.context_layers, **stage
         )
         self.action_network = HeteroGraphTransformer(
             action_edge_dims(config.num_frequencies), [ACTION], num_layers=config.action_layers, **stage
@@ -394,41 +396,66 @@ class InstantPolicyNetwork(nn.Module):
 
         demo_features = gripper_features[:, :-1].unflatten(1, (num_demos, demo_length))
         return InstantPolicyContext(
-            current_gripper_features=self._context_features(demos.T_world_ee, demo_features, gripper_features[:, -1]),
+            current_gripper_features=self._context_features(
+                demos.T_world_ee, demo_features, gripper_features[:, -1], scene_positions, scene_features
+            ),
             points_ee=points_ee,
             scene_positions_ee=scene_positions,
             scene_features=scene_features,
         )
 
     def _context_features(
-        self, T_world_ee: torch.Tensor, demo_features: torch.Tensor, current_features: torch.Tensor
+        self,
+        T_world_ee: torch.Tensor,
+        demo_features: torch.Tensor,
+        current_features: torch.Tensor,
+        scene_positions: torch.Tensor,
+        scene_features: torch.Tensor,
     ) -> torch.Tensor:
         """φ: demo waypoint poses ``(B, N, L, 4, 4)`` in their demonstration's world frame, demo gripper nodes
-        ``(B, N, L, G, H)`` and current gripper nodes ``(B, G, H)`` after σ → the current gripper nodes ``(B, G, H)``."""
+        ``(B, N, L, G, H)`` and current gripper nodes ``(B, G, H)`` after σ → the current gripper nodes ``(B, G, H)``.
+        The live scene nodes ``(B, M, 3)`` (current EE frame), ``(B, M, D)`` are read only with
+        ``context_scene_edges``."""
         if self.config.dense_attention:
-            return self._context_features_dense(T_world_ee, demo_features, current_features)
+            return self._context_features_dense(T_world_ee, demo_features, current_features, scene_positions,
+                                                scene_features)
         batch, num_demos, demo_length = T_world_ee.shape[:3]
-        graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, T_world_ee.device)
+        scene_edges = self.config.context_scene_edges
+        num_scene = scene_positions.shape[1] if scene_edges else 0
+        graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, T_world_ee.device, num_scene)
         keypoints = self._keypoints(T_world_ee)
         demo_frames = T_world_ee.reshape(-1, 4, 4)
+        frequencies = self.config.num_frequencies
         edge_attr = {
-            DEMO_TIME: transform_attr(demo_frames, demo_frames, graph[DEMO_TIME], keypoints, self.config.num_frequencies),
-            DEMO_TO_CURRENT: keypoint_offset_attr(graph[DEMO_TO_CURRENT], keypoints, self.config.num_frequencies),
+            DEMO_TIME: transform_attr(demo_frames, demo_frames, graph[DEMO_TIME], keypoints, frequencies),
+            DEMO_TO_CURRENT: keypoint_offset_attr(graph[DEMO_TO_CURRENT], keypoints, frequencies),
         }
         x = {
             DEMO: demo_features.reshape(-1, demo_features.shape[-1]),
             CURRENT: current_features.reshape(-1, current_features.shape[-1]),
         }
+        if scene_edges:
+            edge_attr[SCENE_TO_CURRENT] = position_attr(
+                scene_positions.reshape(-1, 3), keypoints.repeat(batch, 1), graph[SCENE_TO_CURRENT].edge_index,
+                frequencies,
+            )
+            x[SCENE] = self.scene_projection(scene_features.reshape(-1, scene_features.shape[-1]))
         current = self.context_network(x, graph.edge_index_dict, edge_attr)[CURRENT]
         return current.view(batch, self.num_keypoints, -1)
 
     def _context_features_dense(
-        self, T_world_ee: torch.Tensor, demo_features: torch.Tensor, current_features: torch.Tensor
+        self,
+        T_world_ee: torch.Tensor,
+        demo_features: torch.Tensor,
+        current_features: torch.Tensor,
+        scene_positions: torch.Tensor,
+        scene_features: torch.Tensor,
     ) -> torch.Tensor:
         """:meth:`_context_features` in the dense layout (:func:`~.graph.dense_context_layouts`): the time edges
         ``l + 1 → l`` carry ``[enc(t), enc(R k − k)]`` of ``T_l+1,l`` once per source waypoint
         (:func:`~.graph.dense_transform_attr` on the ``B · N · (L − 1)`` waypoint pairs), the demo → current edges
-        ``enc(k_dst − k_src)`` (:func:`~.graph.dense_keypoint_offset_attr`)."""
+        ``enc(k_dst − k_src)`` (:func:`~.graph.dense_keypoint_offset_attr`), the scene → current edges
+        ``enc(k − p)`` (:func:`~.graph.dense_position_attr`)."""
         batch, num_demos, demo_length = T_world_ee.shape[:3]
         keypoints = self._keypoints(T_world_ee)
         frequencies = self.config.num_frequencies
@@ -443,6 +470,12 @@ class InstantPolicyNetwork(nn.Module):
         }
         masks = {DEMO_TIME: None, DEMO_TO_CURRENT: None}
         x = {DEMO: demo_features, CURRENT: current_features}
+        if self.config.context_scene_edges:
+            edge_attr[SCENE_TO_CURRENT] = dense_position_attr(
+                scene_positions, keypoints.expand(batch, -1, -1), frequencies
+            )
+            masks[SCENE_TO_CURRENT] = None
+            x[SCENE] = self._scene_nodes(scene_features)
         return self.context_network.forward_dense(x, edge_attr, masks, dense_context_layouts())[CURRENT]
 
     # ------------------------------------------------------------------ action part (every denoising step)
