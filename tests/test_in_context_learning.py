@@ -32,6 +32,7 @@ def test_a_short_rung1_run_reads_its_demonstrations(tmp_path):
     command = [
         str(TRAIN), "--policy.type=instant_policy", "--policy.preset=small", "--policy.reencode_action_clouds=false",
         "--policy.max_demos=2", "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100",
+        "--policy.action_scene_graph=false", "--policy.num_frequencies=4",
         "--dataset.repo_id=local/reach_train", f"--dataset.root={tmp_path / 'train'}", f"--steps={STEPS}",
         "--batch_size=8", "--num_workers=1", f"--save_freq={STEPS}", "--log_freq=100", "--wandb.enable=false",
         "--seed=1", "--policy.device=cpu", f"--output_dir={out}",

@@ -74,7 +74,7 @@ MODULES = {
 LADDER_POLICY_ARGS = [
     "--policy.preset=small", "--policy.reencode_action_clouds=false", "--policy.max_demos=2",
     "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100", "--policy.use_amp=true",
-    "--policy.action_scene_graph=false",
+    "--policy.action_scene_graph=false", "--policy.num_frequencies=4",
 ]
 
 
