@@ -12,18 +12,21 @@ file: the encoder weights are loaded in an explicit step of the policy
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
-from lerobot.optim import AdamWConfig, DiffuserSchedulerConfig
+from lerobot.optim import DiffuserSchedulerConfig
 
 from .contract import POINTCLOUD_KEY
 from .geometry.gripper import GRIPPER_KEYPOINTS
 from .model.action_diffusion import LOSS_WEIGHTINGS
 from .model.geometry_encoder import GeometryEncoderConfig, encoder_preset
 from .model.instant_policy_network import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS
+from .optimizer import InstantPolicyAdamWConfig
 from .policy_features import (
     check_policy_features,
     contract_input_features,
@@ -119,7 +122,8 @@ class InstantPolicyConfig(PreTrainedConfig):
     rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
     ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy; N is
     drawn per batch and capped at the fewest other episodes a row's task has
-    (a demonstration never repeats in one context); AdamW with
+    (a demonstration never repeats in one context); AdamW (PyTorch's fused kernel on the CPU and CUDA,
+    :class:`~.optimizer.InstantPolicyAdamWConfig`) with
     ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-4 for ``small``), linear warmup
     over ``scheduler_warmup_steps`` then cosine decay to zero, gradients clipped to ``optimizer_grad_clip_norm``.
 
@@ -192,6 +196,14 @@ class InstantPolicyConfig(PreTrainedConfig):
             if getattr(self, name) is None:
                 setattr(self, name, getattr(preset, name))
         self.gripper_keypoints = [[float(value) for value in point] for point in self.gripper_keypoints]
+        if self.use_amp and self.device == "cpu" and not cpu_has_fast_bfloat16():
+            # as LeRobot's PreTrainedConfig deactivates AMP where a device has none
+            logging.getLogger(__name__).warning(
+                "use_amp deactivated: this CPU (%s) has no fast bfloat16 kernels, where autocast measured 0.1x the "
+                "float32 training speed (lerobot-ip-bench train-step --compare-amp)",
+                torch.backends.cpu.get_cpu_capability(),
+            )
+            self.use_amp = False
         self._validate()
 
     def _validate(self) -> None:
@@ -295,8 +307,8 @@ class InstantPolicyConfig(PreTrainedConfig):
         """P, the points per cloud the policy expects (from ``input_features``)."""
         return int(self.input_features[POINTCLOUD_KEY].shape[0])
 
-    def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(
+    def get_optimizer_preset(self) -> InstantPolicyAdamWConfig:
+        return InstantPolicyAdamWConfig(
             lr=self.optimizer_lr,
             betas=self.optimizer_betas,
             eps=self.optimizer_eps,
@@ -321,6 +333,12 @@ class InstantPolicyConfig(PreTrainedConfig):
     @property
     def reward_delta_indices(self) -> None:
         return None
+
+
+def cpu_has_fast_bfloat16() -> bool:
+    """Whether oneDNN has bfloat16 kernels for this CPU (AVX-512 or newer); on an AVX2 CPU bfloat16 matrix products
+    are emulated and autocast slows training down instead of speeding it up."""
+    return bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def _check_range(name: str, value: int, bounds: tuple[int, int]) -> None:

@@ -175,3 +175,30 @@ def test_fit_rigid_is_roma_rigid_points_registration(angle_scale):
     torch.testing.assert_close(R_fit, R_roma, atol=1e-5, rtol=0)
     torch.testing.assert_close(t_fit, t_roma, atol=1e-6, rtol=0)
     assert torch.allclose(torch.det(R_fit), torch.ones(4, 8))
+
+
+def test_fused_adamw_preset_matches_the_loop_implementation():
+    """The policy's optimizer preset fuses AdamW on the CPU, and its updates equal PyTorch's loop AdamW's."""
+    from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+    from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+
+    config = InstantPolicyConfig(device="cpu", optimizer_lr=1e-3)
+    preset = config.get_optimizer_preset()
+    assert preset.type == "instant_policy_adamw" and preset.grad_clip_norm == config.optimizer_grad_clip_norm
+    fused_policy = InstantPolicyPolicy(config)
+    loop_policy = InstantPolicyPolicy(config)
+    loop_policy.load_state_dict(fused_policy.state_dict())
+    fused = preset.build(fused_policy.get_optim_params())
+    loop = type(preset)(**{**preset.__dict__, "fused": False}).build(loop_policy.get_optim_params())
+    assert fused.defaults["fused"] is True and not loop.defaults["fused"]
+    initial = [p.detach().clone() for p in fused_policy.get_optim_params()]
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(3):
+        for a, b in zip(fused_policy.get_optim_params(), loop_policy.get_optim_params(), strict=True):
+            a.grad = torch.randn(a.shape, generator=generator)
+            b.grad = a.grad.clone()
+        fused.step()
+        loop.step()
+    for (name, a), b in zip(fused_policy.named_parameters(), loop_policy.parameters(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6, msg=name)
+    assert all(not torch.equal(p, p0) for p, p0 in zip(fused_policy.get_optim_params(), initial, strict=True))

@@ -45,6 +45,16 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
     assert cfg.encoder_weights_path() == SHIPPED_ENCODER_DIR / "small.safetensors"
 
 
+@pytest.mark.parametrize("fast_bfloat16", [True, False])
+def test_use_amp_is_deactivated_on_a_cpu_without_fast_bfloat16(monkeypatch, caplog, fast_bfloat16):
+    from lerobot_instant_policy import configuration_instant_policy
+
+    monkeypatch.setattr(configuration_instant_policy, "cpu_has_fast_bfloat16", lambda: fast_bfloat16)
+    assert config(use_amp=True).use_amp is fast_bfloat16
+    assert ("use_amp deactivated" in caplog.text) is not fast_bfloat16
+    assert config(use_amp=False).use_amp is False
+
+
 @pytest.mark.parametrize("preset", ["small", "paper"])
 def test_preset_fills_every_size_left_unset(preset):
     cfg = config(preset=preset)
@@ -73,11 +83,11 @@ def test_explicit_sizes_win_over_the_preset():
 def test_optimizer_and_scheduler_presets():
     cfg = config(preset="small", optimizer_grad_clip_norm=0.5, scheduler_warmup_steps=10)
     optimizer_config = cfg.get_optimizer_preset()
-    assert optimizer_config.type == "adamw"
+    assert optimizer_config.type == "instant_policy_adamw"
     assert (optimizer_config.lr, optimizer_config.grad_clip_norm) == (1e-4, 0.5)
     parameter = torch.nn.Parameter(torch.zeros(3))
     optimizer = optimizer_config.build([parameter])
-    assert isinstance(optimizer, torch.optim.AdamW)
+    assert isinstance(optimizer, torch.optim.AdamW) and optimizer.defaults["fused"]  # fused on the CPU
     scheduler = cfg.get_scheduler_preset().build(optimizer, num_training_steps=100)
     rates = []
     for _ in range(100):

@@ -52,6 +52,9 @@ def test_train_writes_checkpoints_and_resume_continues(trained):
     assert {"000010", "000020", "000022"} <= {path.name for path in checkpoints.iterdir()}
     assert json.loads((checkpoints / "last" / "training_state" / "training_step.json").read_text())["step"] == 22
     assert "step:20" in first_log and "loss:" in first_log
+    # the fused AdamW preset is saved by name and parsed again on resume
+    train_config = json.loads((checkpoints / "last" / "pretrained_model" / "train_config.json").read_text())
+    assert train_config["optimizer"]["type"] == "instant_policy_adamw"
     assert "Resume" in resumed_log or "resum" in resumed_log.lower()
     # a healthy install prints no traceback (LeRobot's torchcodec probe is one line without a system FFmpeg)
     assert "Traceback" not in first_log and "Traceback" not in resumed_log

@@ -70,3 +70,16 @@ def test_train_step_benchmark_compares_autocast_and_float32(capsys):
     assert len(result["runs_amp"]) == len(result["runs_float32"]) == 3
     assert min(result["runs_amp"] + result["runs_float32"]) > 0
     assert result["amp_over_float32"] == round(result["amp"] / result["float32"], 3)
+
+
+def test_train_step_benchmark_compares_fused_and_loop_adamw_on_the_ladder_recipe(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
+                 "--action-scene-graph", "false", "--num-frequencies", "4", "--compare-fused-adamw", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["figure"] == "samples_per_s" and "fused_adamw" not in result
+    assert result["action_scene_graph"] is False and result["num_frequencies"] == 4
+    assert len(result["runs_fused"]) == len(result["runs_loop"]) == 3
+    assert min(result["runs_fused"] + result["runs_loop"]) > 0
+    assert result["fused_over_loop"] == round(result["fused"] / result["loop"], 3)

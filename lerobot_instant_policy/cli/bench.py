@@ -171,6 +171,10 @@ def main(argv: list[str] | None = None) -> int:
                             help="forward under autocast (bfloat16 on the CPU), as --policy.use_amp=true trains")
     train_step.add_argument("--compare-amp", action="store_true",
                             help="time autocast and float32 in alternation and report the ratio")
+    train_step.add_argument("--fused-adamw", choices=["true", "false"],
+                            help="AdamW's fused kernel (default: the preset's, fused on the CPU and CUDA)")
+    train_step.add_argument("--compare-fused-adamw", action="store_true",
+                            help="time fused and loop AdamW in alternation and report the ratio")
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     data = commands.add_parser("data", help="milliseconds per training row: LeRobot's delta timestamps against the "
                                             "policy's action table")
@@ -196,9 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size) <= 0:
             parser.error("--repeats and --batch-size must be positive")
-        if args.compare_dense_attention + args.compare_frame_cache + args.compare_amp > 1:
-            parser.error("compare one variant at a time: --compare-dense-attention, --compare-frame-cache or "
-                         "--compare-amp")
+        if args.compare_dense_attention + args.compare_frame_cache + args.compare_amp + args.compare_fused_adamw > 1:
+            parser.error("compare one variant at a time: --compare-dense-attention, --compare-frame-cache, "
+                         "--compare-amp or --compare-fused-adamw")
         from .bench_policy import bench_train_step, compare_variants
 
         def run(**variant):
@@ -207,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
                 fixed["frame_cache"] = args.frame_cache == "true"
             if not args.compare_amp:
                 fixed["use_amp"] = args.amp == "true"
+            if not args.compare_fused_adamw and args.fused_adamw is not None:
+                fixed["fused_adamw"] = args.fused_adamw == "true"
             return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_overrides(args),
                                     **fixed, **variant)
 
@@ -216,6 +222,8 @@ def main(argv: list[str] | None = None) -> int:
             result = compare_variants(run, "samples_per_s", "frame_cache", ("cached", "live"))
         elif args.compare_amp:
             result = compare_variants(run, "samples_per_s", "use_amp", ("amp", "float32"))
+        elif args.compare_fused_adamw:
+            result = compare_variants(run, "samples_per_s", "fused_adamw", ("fused", "loop"))
         else:
             result = run()
     elif args.command == "data":
@@ -250,15 +258,23 @@ def _add_variant_arguments(parser: argparse.ArgumentParser) -> None:
         "--reencode-action-clouds", choices=["true", "false"], help="override the config (default: the preset's)"
     )
     parser.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
+    parser.add_argument("--action-scene-graph", choices=["true", "false"],
+                        help="override the config (default: true, the paper's graph; make ladder: false)")
+    parser.add_argument("--num-frequencies", type=int, help="edge-encoding frequencies D (default: 10; make ladder: 4)")
     parser.add_argument("--compare-dense-attention", action="store_true",
                         help="time dense and reference attention in alternation and report the ratio")
 
 
 def _overrides(args) -> dict:
-    """Config overrides from ``--reencode-action-clouds`` and ``--dense-attention`` (the latter not when comparing)."""
+    """Config overrides from ``--reencode-action-clouds``, ``--action-scene-graph``, ``--num-frequencies`` and
+    ``--dense-attention`` (the latter not when comparing)."""
     overrides = {}
     if args.reencode_action_clouds is not None:
         overrides["reencode_action_clouds"] = args.reencode_action_clouds == "true"
+    if args.action_scene_graph is not None:
+        overrides["action_scene_graph"] = args.action_scene_graph == "true"
+    if args.num_frequencies is not None:
+        overrides["num_frequencies"] = args.num_frequencies
     if args.dense_attention is not None and not args.compare_dense_attention:
         overrides["dense_attention"] = args.dense_attention == "true"
     return overrides

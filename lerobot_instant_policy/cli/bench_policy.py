@@ -99,18 +99,20 @@ def bench_inference(
 
 def bench_train_step(
     preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5, frame_cache: bool = True,
-    use_amp: bool = False, **overrides,
+    use_amp: bool = False, fused_adamw: bool | None = None, **overrides,
 ) -> dict:
-    """Training samples per second of ``forward`` + ``backward`` + AdamW step (N fixed), and the process's peak
-    resident memory. With ``frame_cache`` every frame's scene nodes come from frame encodings computed beforehand, as
-    ``lerobot-train`` reads them from beside its dataset; without it, the live clouds are encoded at every step and
-    the context waypoints once (the context encoder's cache is warm before timing). ``use_amp`` runs ``forward`` under
-    ``torch.autocast`` with the device's default dtype (bfloat16 on the CPU), as ``lerobot-train
-    --policy.use_amp=true`` does."""
+    """Training samples per second of ``forward`` + ``backward`` + gradient clipping + optimizer step (N fixed), as
+    one ``lerobot-train`` update with the policy's optimizer preset (``fused_adamw``: its ``fused`` option, ``None``
+    for the preset's automatic choice), and the process's peak resident memory. With ``frame_cache`` every frame's
+    scene nodes come from frame encodings computed beforehand, as ``lerobot-train`` reads them from beside its
+    dataset; without it, the live clouds are encoded at every step and the context waypoints once (the context
+    encoder's cache is warm before timing). ``use_amp`` runs ``forward`` under ``torch.autocast`` with the device's
+    default dtype (bfloat16 on the CPU), as ``lerobot-train --policy.use_amp=true`` does where the config keeps it
+    (on a CPU without fast bfloat16 kernels the config turns it off; the bench still measures it)."""
     from ..frame_encodings import FrameEncodings
     from ..modeling_instant_policy import InstantPolicyPolicy
 
-    config = _config(preset, min_demos=num_demos, max_demos=num_demos, use_amp=use_amp, **overrides)
+    config = _config(preset, min_demos=num_demos, max_demos=num_demos, **overrides)
     policy = InstantPolicyPolicy(config).to(config.device).train()
     rng = np.random.default_rng(0)
     L, P, T = config.num_waypoints, config.num_points, config.horizon
@@ -141,14 +143,17 @@ def bench_train_step(
         encodings = FrameEncodings(None, positions.cpu().numpy(), features.cpu().numpy())
     policy.set_training_bank(bank, frame_encodings=encodings)
     batch = {key: value.to(config.device) for key, value in batch.items()}
-    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=config.optimizer_lr)
+    optimizer_config = config.get_optimizer_preset()
+    optimizer_config.fused = fused_adamw
+    optimizer = optimizer_config.build(policy.get_optim_params())
 
-    def step() -> None:
-        with torch.autocast(torch.device(config.device).type, enabled=config.use_amp):
+    def step() -> None:  # lerobot-train's update_policy, without its accelerator
+        with torch.autocast(torch.device(config.device).type, enabled=use_amp):
             loss, _ = policy.forward(batch)
-        optimizer.zero_grad()
         loss.backward()
+        torch.nn.utils.clip_grad_norm_(policy.parameters(), optimizer_config.grad_clip_norm)
         optimizer.step()
+        optimizer.zero_grad()
         if config.device == "cuda":
             torch.cuda.synchronize()
 
@@ -161,8 +166,9 @@ def bench_train_step(
     return {
         "benchmark": "train-step", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "dense_attention": config.dense_attention, "frame_cache": frame_cache, "use_amp": config.use_amp,
-        "batch": batch_size, "N": num_demos,
+        "dense_attention": config.dense_attention, "frame_cache": frame_cache, "use_amp": use_amp,
+        "action_scene_graph": config.action_scene_graph, "num_frequencies": config.num_frequencies,
+        "fused_adamw": bool(optimizer.defaults["fused"]), "batch": batch_size, "N": num_demos,
         "L": L, "T": T, "points": P, "samples_per_s": round(batch_size / statistics.median(times), 2),
         "runs_s_per_step": [round(value, 3) for value in times],
         "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
