@@ -259,3 +259,32 @@ def test_surface_clouds_from_the_command_line(tmp_path):
     assert distances.max() < 1e-5
     assert scenes[0]["task"] == scenes[1]["task"]
     assert _generate(out, "--family", "reach", "--num-tasks", "1", "--demos-per-task", "2", "--resume") == 2
+
+
+def test_shared_object_layout_places_every_demonstration_of_a_task_alike(tmp_path):
+    """``--share-object-layout``: the demonstrations of a task start from different gripper poses in one object
+    layout, which the plan records; other tasks get their own layouts."""
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+
+    config = config_from_args(build_parser().parse_args(["--share-object-layout", "--num-tasks", "1"]))
+    assert config.demo.share_object_layout and config.plan()["demo"]["share_object_layout"]
+    out = tmp_path / "shared"
+    assert _generate(out, "--family", "reach", "--share-object-layout", "--num-tasks", "2",
+                     "--demos-per-task", "3", "--seed", "6") == 0
+    scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
+    by_task: dict[str, list[dict]] = {}
+    for scene in scenes:
+        by_task.setdefault(scene["task"], []).append(scene)
+    first, second = by_task.values()
+    for demos in (first, second):
+        assert len(demos) == 3
+        for demo in demos[1:]:
+            assert demo["T_world_objects"] == demos[0]["T_world_objects"]
+            assert demo["T_world_ee_start"] != demos[0]["T_world_ee_start"]
+    assert first[0]["T_world_objects"] != second[0]["T_world_objects"]
+    # the rendered scenes agree too: the first frames' clouds of one task lie on the same object surfaces
+    dataset = LeRobotDataset(REPO_ID, root=out)
+    clouds = [read_episode(dataset, index)["points"][0].astype(np.float64) for index in range(2)]
+    assert np.median(cKDTree(clouds[0]).query(clouds[1])[0]) < 0.01

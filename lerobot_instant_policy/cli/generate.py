@@ -31,6 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks-per-object-group", type=int, help="consecutive tasks that share their two objects")
     parser.add_argument("--cloud", choices=list(CLOUD_SOURCES),
                         help="cameras: rendered segmented depth (default); surface: complete object surface samples")
+    parser.add_argument("--share-object-layout", action="store_true",
+                        help="every demonstration of a task places the objects as its first one (only the start differs)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted generation in --out")
     parser.add_argument("--keep-shards", action="store_true", help="keep the per-shard datasets after merging")
@@ -57,6 +59,8 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
     config = dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
     if args.cloud is not None:
         config = dataclasses.replace(config, render=dataclasses.replace(config.render, cloud=args.cloud))
+    if args.share_object_layout:
+        config = dataclasses.replace(config, demo=dataclasses.replace(config.demo, share_object_layout=True))
     return config
 
 

@@ -115,8 +115,9 @@ def generate_task(
         try:
             demos = [make_demo(task, objects, renderer, rng, config.demo)]
             signature = hold_signature(task, demos[0].layout, objects)
+            shared = demos[0].layout.T_world_objects if config.demo.share_object_layout else None
             for _ in range(config.demos_per_task - 1):
-                demos.append(make_demo(task, objects, renderer, rng, config.demo, signature))
+                demos.append(make_demo(task, objects, renderer, rng, config.demo, signature, shared))
         except GenerationError as error:
             errors.append(str(error))
             continue

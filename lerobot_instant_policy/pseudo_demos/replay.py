@@ -36,7 +36,9 @@ class GenerationError(RuntimeError):
 
 @dataclass
 class DemoConfig:
-    """How one pseudo-demonstration is laid out, moved, augmented and observed."""
+    """How one pseudo-demonstration is laid out, moved, augmented and observed. With ``share_object_layout`` every
+    demonstration of a task places the objects where its first one does, and only the gripper's start pose (and the
+    augmentations) differ: the easiest context, where a demonstration shows the live scene itself."""
 
     num_points: int = 2048
     object_x_range: tuple[float, float] = (0.38, 0.62)
@@ -50,6 +52,7 @@ class DemoConfig:
     gripper_fault_fraction: float = 0.1
     max_scene_attempts: int = 25
     min_height: float = -0.005
+    share_object_layout: bool = False
 
 
 @dataclass
@@ -188,17 +191,21 @@ def make_demo(
     rng: np.random.Generator,
     config: DemoConfig,
     expected_signature: tuple[int, ...] | None = None,
+    T_world_objects: np.ndarray | None = None,
 ) -> PseudoDemo:
     """Render one demonstration of ``task``; scenes are resampled until one fits.
 
     A scene fits when every frame's cloud has points, neither the gripper nor an object goes below the table
     (``min_height``) and, if ``expected_signature`` is given, the same objects get grasped at the same waypoints
-    as in the task's other demonstrations.
+    as in the task's other demonstrations. ``T_world_objects (2, 4, 4)`` fixes the objects' initial poses (only the
+    start pose is sampled).
     """
     renderer.set_objects(objects)
     reasons = []
     for _ in range(config.max_scene_attempts):
         layout = sample_layout(objects, rng, config)
+        if T_world_objects is not None:
+            layout = SceneLayout(T_world_objects.copy(), layout.T_world_ee_start)
         if expected_signature is not None and hold_signature(task, layout, objects) != expected_signature:
             reasons.append("grasps differ from the task's other demonstrations")
             continue
