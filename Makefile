@@ -49,9 +49,11 @@ train: train-data
 		--val-root outputs/pseudo_demos_val --samples 128 --out docs/training_curve.png
 
 # Issue 11's CPU proof (docs/results.md, "In-context learning"): rung RUNG of the pseudo-task ladder (1: reach,
-# 2: reach_grip), held-out pseudo-tasks on held-out objects, LADDER_STEPS steps of batch 8 in bfloat16 with the
-# action nodes seeing the scene through the current nodes only and edge encodings at 4 frequencies (the best held-out
-# context gain measured; 20-26 min on 2 cores), then the action error against holding still and the context gain. Generation and training resume.
+# 2: reach_grip), held-out pseudo-tasks on held-out objects, LADDER_STEPS steps of batch 8 in bfloat16 (float32 on a
+# CPU without fast bfloat16 kernels, where the config turns use_amp off) with the action nodes seeing the scene through
+# the current nodes only and edge encodings at 4 frequencies (the best held-out context gain measured; 20-26 min on 2
+# AVX-512 cores, about 30 min in float32 on 2 AVX2 cores), then the action error against holding still and the context
+# gain. Generation and training resume.
 RUNG ?= 1
 RUNG_NAME = $(if $(filter 1,$(RUNG)),rung1_reach,rung2_reach_grip)
 LADDER_STEPS ?= 8000
