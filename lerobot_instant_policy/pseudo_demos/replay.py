@@ -191,21 +191,21 @@ def make_demo(
     rng: np.random.Generator,
     config: DemoConfig,
     expected_signature: tuple[int, ...] | None = None,
-    T_world_objects: np.ndarray | None = None,
+    T_world_objects_start: np.ndarray | None = None,
 ) -> PseudoDemo:
     """Render one demonstration of ``task``; scenes are resampled until one fits.
 
     A scene fits when every frame's cloud has points, neither the gripper nor an object goes below the table
     (``min_height``) and, if ``expected_signature`` is given, the same objects get grasped at the same waypoints
-    as in the task's other demonstrations. ``T_world_objects (2, 4, 4)`` fixes the objects' initial poses (only the
-    start pose is sampled).
+    as in the task's other demonstrations. ``T_world_objects_start (2, 4, 4)`` fixes the objects' initial poses (only
+    the gripper's start pose is sampled).
     """
     renderer.set_objects(objects)
     reasons = []
     for _ in range(config.max_scene_attempts):
         layout = sample_layout(objects, rng, config)
-        if T_world_objects is not None:
-            layout = SceneLayout(T_world_objects.copy(), layout.T_world_ee_start)
+        if T_world_objects_start is not None:
+            layout = SceneLayout(T_world_objects_start.copy(), layout.T_world_ee_start)
         if expected_signature is not None and hold_signature(task, layout, objects) != expected_signature:
             reasons.append("grasps differ from the task's other demonstrations")
             continue
