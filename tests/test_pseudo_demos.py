@@ -415,3 +415,13 @@ def test_generation_error_when_objects_never_in_view(pick_task, objects, rendere
     config = DemoConfig(object_x_range=(20.0, 20.1), max_scene_attempts=2)
     with pytest.raises(GenerationError, match=r"no valid scene in 2 attempts \(a frame had no object in view\)"):
         make_demo(pick_task, objects, renderer, np.random.default_rng(0), config)
+
+
+def test_a_shared_object_layout_survives_scene_retries(pick_task, objects, renderer):
+    """Fixed initial object poses (``--share-object-layout``) are reused on every scene attempt: here every attempt
+    fails the same way, and the error says so."""
+    far = np.stack([np.eye(4), np.eye(4)])
+    far[:, 0, 3] = [20.0, 20.3]
+    config = DemoConfig(max_scene_attempts=3)
+    with pytest.raises(GenerationError, match=r"no valid scene in 3 attempts \(a frame had no object in view\)"):
+        make_demo(pick_task, objects, renderer, np.random.default_rng(0), config, T_world_objects_start=far)
