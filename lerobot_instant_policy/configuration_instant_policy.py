@@ -120,7 +120,9 @@ class InstantPolicyConfig(PreTrainedConfig):
     changes), so training steps read scene nodes instead of encoding clouds. ``gripper_flip_probability`` of the
     current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and
     rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
-    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy; N is
+    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy, averaged
+    over ``noise_draws`` diffusion timesteps and noises per sample (σ and φ, which do not depend on the noisy actions,
+    run once per sample: a lower-variance estimate of the same loss for the cost of ψ); N is
     drawn per batch and capped at the fewest other episodes a row's task has
     (a demonstration never repeats in one context); AdamW (PyTorch's fused kernel on the CPU and CUDA,
     :class:`~.optimizer.InstantPolicyAdamWConfig`) with
@@ -164,6 +166,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     context_scene_edges: bool = False
     cache_frame_encodings: bool = True
     flow_loss_weighting: str = "uniform"
+    noise_draws: int = 1
 
     gripper_flip_probability: float = 0.1
     gripper_loss_weight: float = 0.1
@@ -251,6 +254,8 @@ class InstantPolicyConfig(PreTrainedConfig):
             raise ValueError(
                 f"flow_loss_weighting must be one of {list(LOSS_WEIGHTINGS)}, got {self.flow_loss_weighting!r}"
             )
+        if not isinstance(self.noise_draws, int) or self.noise_draws < 1:
+            raise ValueError(f"noise_draws must be a positive integer, got {self.noise_draws!r}")
         if self.gripper_loss_weight < 0:
             raise ValueError(f"gripper_loss_weight must be non-negative, got {self.gripper_loss_weight}")
         if not 0.0 <= self.gripper_flip_probability <= 1.0:

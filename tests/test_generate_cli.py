@@ -288,3 +288,12 @@ def test_shared_object_layout_places_every_demonstration_of_a_task_alike(tmp_pat
     dataset = LeRobotDataset(REPO_ID, root=out)
     clouds = [read_episode(dataset, index)["points"][0].astype(np.float64) for index in range(2)]
     assert np.median(cKDTree(clouds[0]).query(clouds[1])[0]) < 0.01
+
+
+def test_layout_angles_out_of_range_fail_clearly_and_write_nothing(tmp_path, capsys):
+    config = tmp_path / "bad.json"
+    config.write_text(json.dumps({"family": "reach", "demo": {"object_max_yaw_deg": 200.0}}))
+    out = tmp_path / "out"
+    assert _generate(out, "--config", str(config)) == 2
+    assert "demo.object_max_yaw_deg must lie in [0, 180] degrees, got 200.0" in capsys.readouterr().err
+    assert not out.exists()

@@ -413,3 +413,25 @@ def test_flow_loss_weighting_reweighs_only_the_flow_terms():
     for part in ("translation", "rotation"):
         assert torch.isfinite(losses["noise"][part]) and float(losses["noise"][part]) != float(losses["uniform"][part])
     assert float(losses["noise"]["gripper"]) == pytest.approx(float(losses["uniform"]["gripper"]), rel=1e-6)
+
+
+def test_noise_draws_equal_training_on_each_row_repeated():
+    """S noise draws per row give exactly the loss of one draw on a batch in which every row appears S times in a row
+    (same generator stream): the context is computed once, the estimator is the same."""
+    batch = _batch(batch=3)
+    repeated = {key: value.repeat_interleave(2, dim=0) for key, value in batch.items()}
+    network = _network(noise_draws=2)
+    with torch.no_grad():
+        drawn = network.training_loss(_context(network, batch), batch["T_ee_actions"], batch["action_gripper"],
+                                      torch.Generator().manual_seed(3))
+        network.config.noise_draws = 1
+        single = network.training_loss(_context(network, repeated), repeated["T_ee_actions"],
+                                       repeated["action_gripper"], torch.Generator().manual_seed(3))
+    for part in ("loss", "translation", "rotation", "gripper"):
+        assert float(drawn[part]) == pytest.approx(float(single[part]), rel=1e-5), part
+
+
+@pytest.mark.parametrize("draws", [0, -1, 1.5])
+def test_noise_draws_must_be_a_positive_integer(draws):
+    with pytest.raises(ValueError, match="noise_draws must be a positive integer"):
+        _tiny_config(noise_draws=draws)

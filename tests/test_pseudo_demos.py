@@ -23,6 +23,7 @@ from lerobot_instant_policy.pseudo_demos.replay import (
     GenerationError,
     hold_signature,
     make_demo,
+    sample_layout,
 )
 from lerobot_instant_policy.pseudo_demos.tasks import (
     FAMILIES,
@@ -425,3 +426,26 @@ def test_a_shared_object_layout_survives_scene_retries(pick_task, objects, rende
     config = DemoConfig(max_scene_attempts=3)
     with pytest.raises(GenerationError, match=r"no valid scene in 3 attempts \(a frame had no object in view\)"):
         make_demo(pick_task, objects, renderer, np.random.default_rng(0), config, T_world_objects_start=far)
+
+
+def _layout_angles(objects, config: DemoConfig, count: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """Object yaws and start-pose roll angles (deg) of ``count`` sampled layouts; the roll is measured against the
+    untilted, unturned top-down pose, so it includes the tilt."""
+    rng = np.random.default_rng(0)
+    yaws, rolls = [], []
+    reference = look_rotation(np.array([0.0, 0.0, -1.0]), 0.0)
+    for _ in range(count):
+        layout = sample_layout(objects, rng, config)
+        yaws += [np.degrees(np.arctan2(T[1, 0], T[0, 0])) for T in layout.T_world_objects]
+        rolls.append(np.degrees(Rotation.from_matrix(reference.T @ layout.T_world_ee_start[:3, :3]).magnitude()))
+    return np.abs(yaws), np.array(rolls)
+
+
+def test_layout_yaw_and_start_roll_ranges(objects):
+    """``object_max_yaw_deg`` and ``start_max_roll_deg`` bound the layout's turns; the defaults span them fully."""
+    yaws, rolls = _layout_angles(objects, DemoConfig(object_max_yaw_deg=30.0, start_max_roll_deg=10.0,
+                                                     start_max_tilt_deg=0.0))
+    assert yaws.max() <= 30.0 + 1e-6 and yaws.max() > 25.0
+    assert rolls.max() <= 10.0 + 1e-6 and rolls.max() > 8.0
+    yaws, rolls = _layout_angles(objects, DemoConfig(start_max_tilt_deg=0.0))
+    assert yaws.max() > 170.0 and rolls.max() > 85.0

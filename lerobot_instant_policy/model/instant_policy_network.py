@@ -132,6 +132,11 @@ class InstantPolicyContext:
     def batch_size(self) -> int:
         return self.points_ee.shape[0]
 
+    def repeat_rows(self, repeats: int) -> InstantPolicyContext:
+        """Each batch row ``repeats`` times in a row: batch ``B`` → ``B · repeats`` (row ``b`` at ``b · repeats …``)."""
+        return InstantPolicyContext(*(value.repeat_interleave(repeats, dim=0) for value in (
+            self.current_gripper_features, self.points_ee, self.scene_positions_ee, self.scene_features)))
+
 
 def _head(hidden_dim: int, out_dim: int) -> nn.Sequential:
     return nn.Sequential(nn.Linear(hidden_dim, hidden_dim), nn.GELU(), nn.Linear(hidden_dim, out_dim))
@@ -556,7 +561,9 @@ class InstantPolicyNetwork(nn.Module):
         action_gripper: torch.Tensor,
         generator: torch.Generator | None = None,
     ) -> dict[str, torch.Tensor]:
-        """Noise the actions at random timesteps and regress the flows and gripper at the action gripper nodes.
+        """Noise the actions at random timesteps and regress the flows and gripper at the action gripper nodes;
+        with ``config.noise_draws`` = S > 1 every row is noised S times (its context computed once) and the losses
+        average over the ``B · S`` draws.
 
         Args:
             T_ee_actions: ``(B, T, 4, 4)`` clean action poses in the current EE frame (clamped to the bounds).
@@ -572,6 +579,11 @@ class InstantPolicyNetwork(nn.Module):
         batch, horizon = context.batch_size, self.config.horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
         self._check_tensor("action_gripper", action_gripper, (batch, horizon))
+        if self.config.noise_draws > 1:
+            draws = self.config.noise_draws
+            context, batch = context.repeat_rows(draws), batch * draws
+            T_ee_actions = T_ee_actions.repeat_interleave(draws, dim=0)
+            action_gripper = action_gripper.repeat_interleave(draws, dim=0)
         device = T_ee_actions.device
         noise_device = generator.device if generator is not None else device
         clean = self.diffusion.normalize(T_ee_actions, action_gripper)

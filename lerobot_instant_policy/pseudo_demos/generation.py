@@ -65,6 +65,9 @@ class GenerationConfig:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if self.family not in FAMILIES:
             raise ValueError(f"family must be one of {list(FAMILIES)}, got {self.family!r}")
+        for name in ("object_max_yaw_deg", "start_max_roll_deg", "start_max_tilt_deg"):
+            if not 0.0 <= getattr(self.demo, name) <= 180.0:
+                raise ValueError(f"demo.{name} must lie in [0, 180] degrees, got {getattr(self.demo, name)}")
         if not 0.0 <= self.biased_fraction <= 1.0:
             raise ValueError(f"biased_fraction must lie in [0, 1], got {self.biased_fraction}")
         if self.object_pool is not None:

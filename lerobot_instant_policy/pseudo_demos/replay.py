@@ -48,6 +48,8 @@ class DemoConfig:
     start_y_range: tuple[float, float] = (-0.25, 0.25)
     start_z_range: tuple[float, float] = (0.22, 0.4)
     start_max_tilt_deg: float = 25.0
+    start_max_roll_deg: float = 90.0
+    object_max_yaw_deg: float = 180.0
     disturbance_probability: float = 0.3
     gripper_fault_fraction: float = 0.1
     max_scene_attempts: int = 25
@@ -89,7 +91,9 @@ class PseudoDemo:
 
 
 def sample_layout(objects: list[ObjectModel], rng: np.random.Generator, config: DemoConfig) -> SceneLayout:
-    """Two non-overlapping objects on the table with random yaw, and a random top-down-ish start pose."""
+    """Two non-overlapping objects on the table with a yaw within ±``object_max_yaw_deg``, and a top-down-ish start
+    pose (tilted by up to ``start_max_tilt_deg``, turned about its approach axis by up to ``start_max_roll_deg``)."""
+    max_yaw, max_roll = np.deg2rad(config.object_max_yaw_deg), np.deg2rad(config.start_max_roll_deg)
     for _ in range(100):
         positions = np.stack(
             [
@@ -105,7 +109,7 @@ def sample_layout(objects: list[ObjectModel], rng: np.random.Generator, config: 
             objects[0].footprint_radius + objects[1].footprint_radius + config.object_clearance
         )
     T_world_objects = np.stack(
-        [make_pose(position, Rotation.from_euler("z", rng.uniform(-np.pi, np.pi))) for position in positions]
+        [make_pose(position, Rotation.from_euler("z", rng.uniform(-max_yaw, max_yaw))) for position in positions]
     )
     tilt_axis = rng.normal(size=3)
     tilt_axis[2] = 0.0
@@ -114,7 +118,7 @@ def sample_layout(objects: list[ObjectModel], rng: np.random.Generator, config: 
     approach = tilt.apply([0.0, 0.0, -1.0])
     start = make_pose(
         [rng.uniform(*config.start_x_range), rng.uniform(*config.start_y_range), rng.uniform(*config.start_z_range)],
-        look_rotation(approach, rng.uniform(-np.pi / 2, np.pi / 2)),
+        look_rotation(approach, rng.uniform(-max_roll, max_roll)),
     )
     return SceneLayout(T_world_objects, start)
 
