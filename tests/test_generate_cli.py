@@ -171,6 +171,7 @@ def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with
         (["--workers", "0"], "workers must be a positive integer"),
         (["--objects", "pb/mug", "urdf/1234"], "unknown object id 'urdf/1234'"),
         (["--resume", "--overwrite"], "either --overwrite or --resume"),
+        (["--start-max-roll-deg", "-5"], "demo.start_max_roll_deg must lie in [0, 180] degrees, got -5.0"),
     ],
 )
 def test_bad_arguments_fail_clearly_and_write_nothing(tmp_path, capsys, arguments, message):
@@ -297,3 +298,19 @@ def test_layout_angles_out_of_range_fail_clearly_and_write_nothing(tmp_path, cap
     assert _generate(out, "--config", str(config)) == 2
     assert "demo.object_max_yaw_deg must lie in [0, 180] degrees, got 200.0" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_layout_angle_flags_reach_the_written_scenes(tmp_path):
+    """``--object-max-yaw-deg 0 --start-max-roll-deg 0``: every recorded object pose is unturned, and the plan says
+    so (a resumed run with other angles is refused by the plan check)."""
+    out = tmp_path / "aligned"
+    assert _generate(out, "--family", "reach", "--num-tasks", "1", "--demos-per-task", "2", "--seed", "4",
+                     "--object-max-yaw-deg", "0", "--start-max-roll-deg", "0") == 0
+    scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
+    for scene in scenes:
+        np.testing.assert_allclose(np.asarray(scene["T_world_objects"])[:, :3, :3], np.tile(np.eye(3), (2, 1, 1)),
+                                   atol=1e-6)
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+
+    config = config_from_args(build_parser().parse_args(["--object-max-yaw-deg", "0", "--start-max-roll-deg", "0"]))
+    assert config.plan()["demo"]["object_max_yaw_deg"] == 0.0 and config.plan()["demo"]["start_max_roll_deg"] == 0.0

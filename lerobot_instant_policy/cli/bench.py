@@ -175,6 +175,8 @@ def main(argv: list[str] | None = None) -> int:
                             help="AdamW's fused kernel (default: the preset's, fused on the CPU and CUDA)")
     train_step.add_argument("--compare-fused-adamw", action="store_true",
                             help="time fused and loop AdamW in alternation and report the ratio")
+    train_step.add_argument("--noise-draws", type=int,
+                            help="diffusion draws per sample (--policy.noise_draws; samples/s counts samples)")
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     data = commands.add_parser("data", help="milliseconds per training row: LeRobot's delta timestamps against the "
                                             "policy's action table")
@@ -198,8 +200,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.compare_dense_attention:
             result = compare_variants(run, "ms_per_control_step", "dense_attention", ("dense", "reference"))
     elif args.command == "train-step":
-        if min(args.repeats, args.batch_size) <= 0:
-            parser.error("--repeats and --batch-size must be positive")
+        if min(args.repeats, args.batch_size, args.noise_draws or 1) <= 0:
+            parser.error("--repeats, --batch-size and --noise-draws must be positive")
         if args.compare_dense_attention + args.compare_frame_cache + args.compare_amp + args.compare_fused_adamw > 1:
             parser.error("compare one variant at a time: --compare-dense-attention, --compare-frame-cache, "
                          "--compare-amp or --compare-fused-adamw")
@@ -213,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
                 fixed["use_amp"] = args.amp == "true"
             if not args.compare_fused_adamw and args.fused_adamw is not None:
                 fixed["fused_adamw"] = args.fused_adamw == "true"
+            if args.noise_draws is not None:
+                fixed["noise_draws"] = args.noise_draws
             return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_overrides(args),
                                     **fixed, **variant)
 

@@ -33,6 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="cameras: rendered segmented depth (default); surface: complete object surface samples")
     parser.add_argument("--share-object-layout", action="store_true",
                         help="every demonstration of a task places the objects as its first one (only the start differs)")
+    parser.add_argument("--object-max-yaw-deg", type=float,
+                        help="objects turn about the vertical by at most this many degrees (default: 180)")
+    parser.add_argument("--start-max-roll-deg", type=float,
+                        help="the gripper's start pose turns about its approach axis by at most this (default: 90)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted generation in --out")
     parser.add_argument("--keep-shards", action="store_true", help="keep the per-shard datasets after merging")
@@ -59,8 +63,14 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
     config = dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
     if args.cloud is not None:
         config = dataclasses.replace(config, render=dataclasses.replace(config.render, cloud=args.cloud))
-    if args.share_object_layout:
-        config = dataclasses.replace(config, demo=dataclasses.replace(config.demo, share_object_layout=True))
+    demo_overrides = {
+        "share_object_layout": True if args.share_object_layout else None,
+        "object_max_yaw_deg": args.object_max_yaw_deg,
+        "start_max_roll_deg": args.start_max_roll_deg,
+    }
+    demo_overrides = {key: value for key, value in demo_overrides.items() if value is not None}
+    if demo_overrides:
+        config = dataclasses.replace(config, demo=dataclasses.replace(config.demo, **demo_overrides))
     return config
 
 
