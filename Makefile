@@ -53,9 +53,10 @@ train: train-data
 # CPU without fast bfloat16 kernels, where the config turns use_amp off) with the action nodes seeing the scene through
 # the current nodes only and edge encodings at 4 frequencies (the best held-out context gain measured; 20-26 min on 2
 # AVX-512 cores, about 30 min in float32 on 2 AVX2 cores), then the action error against holding still and the context
-# gain. Generation and training resume.
+# gain. Generation and training resume. RUNG=1s: rung 1 with every demonstration of a task in one object layout
+# (--share-object-layout; docs/results.md, "Sixth follow-up").
 RUNG ?= 1
-RUNG_NAME = $(if $(filter 1,$(RUNG)),rung1_reach,rung2_reach_grip)
+RUNG_NAME = $(if $(filter 1,$(RUNG)),rung1_reach,$(if $(filter 1s,$(RUNG)),rung1_reach_shared,rung2_reach_grip))
 LADDER_STEPS ?= 8000
 LADDER_DIR = outputs/train/$(RUNG_NAME)
 ladder: $(INSTALLED)
