@@ -83,3 +83,13 @@ def test_train_step_benchmark_compares_fused_and_loop_adamw_on_the_ladder_recipe
     assert len(result["runs_fused"]) == len(result["runs_loop"]) == 3
     assert min(result["runs_fused"] + result["runs_loop"]) > 0
     assert result["fused_over_loop"] == round(result["fused"] / result["loop"], 3)
+
+
+@pytest.mark.parametrize("flag", ["--noise-draws", "--batch-size", "--repeats"])
+def test_train_step_benchmark_refuses_non_positive_sizes(capsys, flag):
+    from lerobot_instant_policy.cli.bench import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train-step", flag, "0"])
+    assert exit_info.value.code == 2
+    assert "--repeats, --batch-size and --noise-draws must be positive" in capsys.readouterr().err

@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.compare_dense_attention:
             result = compare_variants(run, "ms_per_control_step", "dense_attention", ("dense", "reference"))
     elif args.command == "train-step":
-        if min(args.repeats, args.batch_size, args.noise_draws or 1) <= 0:
+        if min(args.repeats, args.batch_size, 1 if args.noise_draws is None else args.noise_draws) <= 0:
             parser.error("--repeats, --batch-size and --noise-draws must be positive")
         if args.compare_dense_attention + args.compare_frame_cache + args.compare_amp + args.compare_fused_adamw > 1:
             parser.error("compare one variant at a time: --compare-dense-attention, --compare-frame-cache, "
