@@ -54,9 +54,12 @@ train: train-data
 # the current nodes only and edge encodings at 4 frequencies (the best held-out context gain measured; 20-26 min on 2
 # AVX-512 cores, about 30 min in float32 on 2 AVX2 cores), then the action error against holding still and the context
 # gain. Generation and training resume. RUNG=1s: rung 1 with every demonstration of a task in one object layout
-# (--share-object-layout; docs/results.md, "Sixth follow-up").
+# (--share-object-layout; docs/results.md, "Sixth follow-up"). RUNG=1b, 2b: rungs 1 and 2 with bounded turns (objects
+# ±45°, start roll ±15°, every gripper pose of a task ±30° about its approach); RUNG=1sb: both (docs/results.md,
+# "Seventh follow-up").
 RUNG ?= 1
-RUNG_NAME = $(if $(filter 1,$(RUNG)),rung1_reach,$(if $(filter 1s,$(RUNG)),rung1_reach_shared,rung2_reach_grip))
+RUNG_NAMES = 1:rung1_reach 1s:rung1_reach_shared 1b:rung1_reach_bounded 1sb:rung1_reach_shared_bounded 2:rung2_reach_grip 2b:rung2_reach_grip_bounded
+RUNG_NAME = $(or $(patsubst $(RUNG):%,%,$(filter $(RUNG):%,$(RUNG_NAMES))),$(error unknown RUNG=$(RUNG); known: 1 1s 1b 1sb 2 2b))
 LADDER_STEPS ?= 8000
 LADDER_DIR = outputs/train/$(RUNG_NAME)
 ladder: $(INSTALLED)

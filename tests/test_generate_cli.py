@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.contract import POSE_GRIPPER_NAMES
 from lerobot_instant_policy.data.lerobot_format import read_episode
+from lerobot_instant_policy.geometry.se3 import look_rotation
 from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
 from lerobot_instant_policy.pseudo_demos.objects import load_object
 
@@ -314,3 +315,21 @@ def test_layout_angle_flags_reach_the_written_scenes(tmp_path):
 
     config = config_from_args(build_parser().parse_args(["--object-max-yaw-deg", "0", "--start-max-roll-deg", "0"]))
     assert config.plan()["demo"]["object_max_yaw_deg"] == 0.0 and config.plan()["demo"]["start_max_roll_deg"] == 0.0
+
+
+def test_waypoint_roll_flag_reaches_the_written_tasks(tmp_path):
+    """``--waypoint-max-roll-deg 0``: every written task's gripper pose has the reference roll about its approach; the
+    plan (which a resumed run must match) records the bound."""
+    out = tmp_path / "unturned"
+    assert _generate(out, "--family", "reach_grip", "--num-tasks", "2", "--demos-per-task", "2", "--seed", "4",
+                     "--waypoint-max-roll-deg", "0") == 0
+    tasks = [json.loads(line) for line in (out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()]
+    assert len(tasks) == 2
+    for task in tasks:
+        for waypoint in task["waypoints"]:
+            T_anchor_ee = np.asarray(waypoint["T_anchor_ee"])
+            np.testing.assert_allclose(T_anchor_ee[:3, :3], look_rotation(T_anchor_ee[:3, 2], 0.0), atol=1e-5)
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+
+    assert config_from_args(build_parser().parse_args(["--waypoint-max-roll-deg", "30"])).plan()[
+        "waypoint_max_roll_deg"] == 30.0

@@ -233,6 +233,30 @@ def test_task_families_of_the_ladder(objects):
         sample_pseudo_task("x", objects, np.random.default_rng(0), family="climb")
 
 
+
+def _roll_about_approach(T_anchor_ee: np.ndarray) -> float:
+    """The turn (degrees) of a gripper pose about its approach axis from ``look_rotation``'s reference roll."""
+    reference = look_rotation(T_anchor_ee[:3, 2], 0.0)
+    return float(np.degrees(Rotation.from_matrix(reference.T @ T_anchor_ee[:3, :3]).as_rotvec()[2]))
+
+
+def test_waypoint_roll_bound_turns_every_gripper_pose_within_it(objects):
+    """``waypoint_max_roll_deg`` bounds each drawn gripper pose's turn about its approach (0: the reference roll);
+    180, the default, allows any turn."""
+    rolls = {0.0: [], 30.0: [], 180.0: []}
+    for seed in range(30):
+        for family in ("reach", "reach_grip"):
+            for bound in rolls:
+                task = sample_pseudo_task("t", objects, np.random.default_rng(seed), family=family,
+                                          waypoint_max_roll_deg=bound)
+                rolls[bound] += [_roll_about_approach(waypoint.T_anchor_ee) for waypoint in task.waypoints]
+    assert np.abs(rolls[0.0]).max() < 1e-6
+    assert np.abs(rolls[30.0]).max() <= 30.0 + 1e-6 and np.abs(rolls[30.0]).max() > 20.0
+    assert np.abs(rolls[180.0]).max() > 150.0
+    with pytest.raises(ValueError, match=r"waypoint_max_roll_deg must lie in \[0, 180\] degrees, got 200"):
+        sample_pseudo_task("x", objects, np.random.default_rng(0), family="reach", waypoint_max_roll_deg=200.0)
+
+
 # --------------------------------------------------------------------------------------- demonstrations
 
 

@@ -37,15 +37,17 @@ def angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R_a.T @ R_b) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def ceiling(family: str, demo: DemoConfig, groups: int, group_size: int = 4, seed: int = 5, frames: int = 4) -> dict:
-    """Mean translation (mm) and rotation (deg) over chunk steps and frames: hold-still and the ideal swap."""
+def ceiling(family: str, demo: DemoConfig, groups: int, group_size: int = 4, seed: int = 5, frames: int = 4,
+            waypoint_max_roll_deg: float = 180.0) -> dict:
+    """Mean translation (mm) and rotation (deg) over chunk steps and frames: hold-still and the ideal swap; and the
+    median turn from the live EE to the path's end (what the network must register to read its demonstrations)."""
     pool = GenerationConfig(family=family, object_split="held_out").pool()
-    hold_t, swap_t, hold_r, swap_r = [], [], [], []
+    hold_t, swap_t, hold_r, swap_r, to_goal = [], [], [], [], []
     for group in range(groups):
         group_rng = np.random.default_rng([seed, group, 1])
         objects = [load_object(pool[index]) for index in group_rng.choice(len(pool), 2, replace=False)]
-        tasks = [sample_pseudo_task(f"g{group}-{k}", objects, np.random.default_rng([seed, group, k]), 0.5, family)
-                 for k in range(group_size)]
+        tasks = [sample_pseudo_task(f"g{group}-{k}", objects, np.random.default_rng([seed, group, k]), 0.5, family,
+                                    waypoint_max_roll_deg) for k in range(group_size)]
         for k, task in enumerate(tasks):
             other = tasks[(k + 1) % group_size]
             rng = np.random.default_rng([seed, group, k, 7])
@@ -60,10 +62,12 @@ def ceiling(family: str, demo: DemoConfig, groups: int, group_size: int = 4, see
                 swap_t.append(np.mean([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(own, swapped)]))
                 hold_r.append(np.mean([angle_deg(T[:3, :3], current[:3, :3]) for T in own]))
                 swap_r.append(np.mean([angle_deg(a[:3, :3], b[:3, :3]) for a, b in zip(own, swapped)]))
+                to_goal.append(angle_deg(current[:3, :3], path[-1][:3, :3]))
     hold, swap = 1000 * float(np.mean(hold_t)), 1000 * float(np.mean(swap_t))
     return {"family": family, "hold_mm": round(hold, 1), "ideal_swap_mm": round(swap, 1),
             "ideal_swap_over_hold": round(swap / hold, 2), "hold_deg": round(float(np.mean(hold_r)), 1),
-            "ideal_swap_deg": round(float(np.mean(swap_r)), 1)}
+            "ideal_swap_deg": round(float(np.mean(swap_r)), 1), "turn_to_goal_median_deg": round(float(np.median(to_goal))),
+            "turn_to_goal_over_90deg": round(float(np.mean(np.array(to_goal) > 90.0)), 2)}
 
 
 def main() -> None:
@@ -71,13 +75,17 @@ def main() -> None:
     parser.add_argument("--groups", type=int, default=12)
     parser.add_argument("--seed", type=int, default=5)
     args = parser.parse_args()
+    aligned = DemoConfig(object_max_yaw_deg=45.0, start_max_roll_deg=15.0)
     variants = {
-        "reach": ("reach", DemoConfig()),
-        "reach, objects ±45°, start roll ±15°": ("reach", DemoConfig(object_max_yaw_deg=45.0, start_max_roll_deg=15.0)),
-        "reach_grip": ("reach_grip", DemoConfig()),
+        "reach": ("reach", DemoConfig(), 180.0),
+        "reach, objects ±45°, start roll ±15°": ("reach", aligned, 180.0),
+        "reach, objects ±45°, start roll ±15°, waypoint roll ±30° (rung1_reach_bounded)": ("reach", aligned, 30.0),
+        "reach_grip": ("reach_grip", DemoConfig(), 180.0),
+        "reach_grip, objects ±45°, start roll ±15°, waypoint roll ±30° (rung2_reach_grip_bounded)": (
+            "reach_grip", aligned, 30.0),
     }
-    for name, (family, demo) in variants.items():
-        print(name, ceiling(family, demo, args.groups, seed=args.seed))
+    for name, (family, demo, roll) in variants.items():
+        print(name, ceiling(family, demo, args.groups, seed=args.seed, waypoint_max_roll_deg=roll))
 
 
 if __name__ == "__main__":

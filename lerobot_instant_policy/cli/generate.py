@@ -37,6 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="objects turn about the vertical by at most this many degrees (default: 180)")
     parser.add_argument("--start-max-roll-deg", type=float,
                         help="the gripper's start pose turns about its approach axis by at most this (default: 90)")
+    parser.add_argument("--waypoint-max-roll-deg", type=float,
+                        help="every gripper pose of a task turns about its approach axis by at most this (default: 180)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted generation in --out")
     parser.add_argument("--keep-shards", action="store_true", help="keep the per-shard datasets after merging")
@@ -59,6 +61,7 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
         "object_pool": args.objects,
         "family": args.family,
         "tasks_per_object_group": args.tasks_per_object_group,
+        "waypoint_max_roll_deg": args.waypoint_max_roll_deg,
     }
     config = dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
     if args.cloud is not None:

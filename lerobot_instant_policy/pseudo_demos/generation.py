@@ -54,6 +54,7 @@ class GenerationConfig:
     biased_fraction: float = 0.5
     family: str = "full"
     tasks_per_object_group: int = 1
+    waypoint_max_roll_deg: float = 180.0
     fps: int = DEFAULT_FPS
     demo: DemoConfig = field(default_factory=DemoConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -68,6 +69,8 @@ class GenerationConfig:
         for name in ("object_max_yaw_deg", "start_max_roll_deg", "start_max_tilt_deg"):
             if not 0.0 <= getattr(self.demo, name) <= 180.0:
                 raise ValueError(f"demo.{name} must lie in [0, 180] degrees, got {getattr(self.demo, name)}")
+        if not 0.0 <= self.waypoint_max_roll_deg <= 180.0:
+            raise ValueError(f"waypoint_max_roll_deg must lie in [0, 180] degrees, got {self.waypoint_max_roll_deg}")
         if not 0.0 <= self.biased_fraction <= 1.0:
             raise ValueError(f"biased_fraction must lie in [0, 1], got {self.biased_fraction}")
         if self.object_pool is not None:
@@ -113,7 +116,8 @@ def generate_task(
             chosen = rng.choice(len(pool), size=2, replace=False)
         objects = [load_object(pool[index]) for index in chosen]
         task = sample_pseudo_task(
-            task_name(config.seed, task_index), objects, rng, config.biased_fraction, config.family
+            task_name(config.seed, task_index), objects, rng, config.biased_fraction, config.family,
+            config.waypoint_max_roll_deg,
         )
         try:
             demos = [make_demo(task, objects, renderer, rng, config.demo)]

@@ -69,21 +69,27 @@ def sample_pseudo_task(
     rng: np.random.Generator,
     biased_fraction: float = 0.5,
     family: str = "full",
+    waypoint_max_roll_deg: float = 180.0,
 ) -> PseudoTask:
     """Sample a task of ``family`` (see ``FAMILIES``) on ``objects`` (two normalised models); in the ``full`` family
-    a biased template with probability ``biased_fraction``, else random waypoints."""
+    a biased template with probability ``biased_fraction``, else random waypoints. Every gripper pose the task
+    draws is turned about its approach axis by a uniform angle within ±``waypoint_max_roll_deg`` (from the
+    approach's reference roll, :func:`~..geometry.se3.look_rotation`); 180 is any turn, and the same draws."""
     if family not in FAMILIES:
         raise ValueError(f"unknown pseudo-task family {family!r}; known: {list(FAMILIES)}")
+    if not 0.0 <= waypoint_max_roll_deg <= 180.0:
+        raise ValueError(f"waypoint_max_roll_deg must lie in [0, 180] degrees, got {waypoint_max_roll_deg}")
+    max_roll = float(np.deg2rad(waypoint_max_roll_deg))
     if family == "full":
         if rng.random() < biased_fraction:
             template = str(rng.choice(TEMPLATES))
-            waypoints = _TEMPLATE_SAMPLERS[template](objects, rng)
+            waypoints = _TEMPLATE_SAMPLERS[template](objects, rng, max_roll)
         else:
             template = "random"
-            waypoints = _random_waypoints(objects, rng)
+            waypoints = _random_waypoints(objects, rng, max_roll)
     else:
         template = family
-        waypoints = _FAMILY_SAMPLERS[family](objects, rng)
+        waypoints = _FAMILY_SAMPLERS[family](objects, rng, max_roll)
     if not 1 <= len(waypoints) <= 6:
         raise AssertionError(f"template {template} made {len(waypoints)} waypoints")
     task = PseudoTask(task_id, template, (objects[0].object_id, objects[1].object_id), waypoints)
@@ -92,20 +98,20 @@ def sample_pseudo_task(
     return task
 
 
-def _reach(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _reach(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     """Rung 1: one pose 2–10 cm off a random surface point of a random object, approached from a random direction."""
     anchor = int(rng.integers(2))
     point, normal = _surface_point(objects[anchor], rng, (-0.3, 1.0))
     position = point + normal * rng.uniform(0.02, 0.1)
     position[2] = max(position[2], 0.03)
     approach = _approach(normal, rng, rng.uniform(0.2, 1.0))
-    return [Waypoint(anchor, make_pose(position, look_rotation(approach, rng.uniform(-np.pi, np.pi))), True, _smooth(rng))]
+    return [Waypoint(anchor, make_pose(position, look_rotation(approach, _roll(rng, max_roll))), True, _smooth(rng))]
 
 
-def _reach_grip(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _reach_grip(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     """Rung 2: reach a pose at a random object's surface, close the gripper, retreat 5–15 cm up and sideways."""
     anchor = int(rng.integers(2))
-    grip = _grasp_pose(objects[anchor], rng, top=rng.random() < 0.6)
+    grip = _grasp_pose(objects[anchor], rng, top=rng.random() < 0.6, max_roll=max_roll)
     sideways = rng.normal(size=2)
     sideways *= rng.uniform(0.0, 0.08) / np.linalg.norm(sideways)
     retreat = _offset(grip, up=rng.uniform(0.05, 0.15), shift=np.array([sideways[0], sideways[1], 0.0]))
@@ -130,12 +136,12 @@ def _approach(normal: np.ndarray, rng: np.random.Generator, down_weight: float) 
     return direction / np.linalg.norm(direction)
 
 
-def _grasp_pose(model: ObjectModel, rng: np.random.Generator, top: bool) -> np.ndarray:
+def _grasp_pose(model: ObjectModel, rng: np.random.Generator, top: bool, max_roll: float) -> np.ndarray:
     """EE pose in the object frame that grasps a part: TCP 0–1.5 cm inside the surface, fingers across it."""
     point, normal = _surface_point(model, rng, (0.5, 1.0) if top else (-0.4, 0.4))
     approach = _approach(normal, rng, down_weight=rng.uniform(0.5, 1.0) if top else rng.uniform(0.0, 0.3))
     position = point + approach * rng.uniform(0.0, 0.015)
-    return make_pose(position, look_rotation(approach, rng.uniform(-np.pi, np.pi)))
+    return make_pose(position, look_rotation(approach, _roll(rng, max_roll)))
 
 
 def _offset(pose: np.ndarray, along_approach: float = 0.0, up: float = 0.0, shift: np.ndarray | None = None) -> np.ndarray:
@@ -155,9 +161,9 @@ def _yawed(pose: np.ndarray, yaw: float) -> np.ndarray:
     return rotated
 
 
-def _grasp(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _grasp(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     target = int(rng.integers(2))
-    grasp = _grasp_pose(objects[target], rng, top=rng.random() < 0.7)
+    grasp = _grasp_pose(objects[target], rng, top=rng.random() < 0.7, max_roll=max_roll)
     waypoints = [
         Waypoint(target, _offset(grasp, along_approach=-rng.uniform(0.05, 0.12)), True, _smooth(rng)),
         Waypoint(target, grasp, False),
@@ -168,10 +174,10 @@ def _grasp(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoin
     return waypoints
 
 
-def _pick_and_place(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _pick_and_place(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     target = int(rng.integers(2))
     base = 1 - target
-    grasp = _grasp_pose(objects[target], rng, top=True)
+    grasp = _grasp_pose(objects[target], rng, top=True, max_roll=max_roll)
     lift = _offset(grasp, up=rng.uniform(0.08, 0.18))
     top_point, _ = _surface_point(objects[base], rng, (0.7, 1.0))
     place_height = objects[target].extents[2] * rng.uniform(0.5, 1.0) + rng.uniform(0.0, 0.03)
@@ -187,14 +193,14 @@ def _pick_and_place(objects: list[ObjectModel], rng: np.random.Generator) -> lis
     ]
 
 
-def _push(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _push(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     target = int(rng.integers(2))
     point, normal = _surface_point(objects[target], rng, (-0.3, 0.3))
     horizontal = np.array([normal[0], normal[1], 0.0])
     horizontal /= max(np.linalg.norm(horizontal), 1e-6)
     contact_position = point + horizontal * rng.uniform(0.005, 0.02)
     approach = _approach(horizontal, rng, rng.uniform(0.6, 1.0))
-    contact = make_pose(contact_position, look_rotation(approach, rng.uniform(-np.pi, np.pi)))
+    contact = make_pose(contact_position, look_rotation(approach, _roll(rng, max_roll)))
     distance = rng.uniform(0.05, 0.15)
     pushed = _offset(contact, shift=-horizontal * distance)
     return [
@@ -206,9 +212,9 @@ def _push(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint
     ]
 
 
-def _pull(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _pull(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     target = int(rng.integers(2))
-    grasp = _grasp_pose(objects[target], rng, top=False)
+    grasp = _grasp_pose(objects[target], rng, top=False, max_roll=max_roll)
     outward = -grasp[:3, 2].copy()
     outward[2] = 0.0
     outward /= max(np.linalg.norm(outward), 1e-6)
@@ -223,12 +229,12 @@ def _pull(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint
     ]
 
 
-def _hinge(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _hinge(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     """Grasp a part and swing it about a hinge axis (door-like: vertical axis; lid-like: horizontal axis)."""
     target = int(rng.integers(2))
     model = objects[target]
     lid_like = rng.random() < 0.5
-    grasp = _grasp_pose(model, rng, top=lid_like)
+    grasp = _grasp_pose(model, rng, top=lid_like, max_roll=max_roll)
     half_extents = model.extents / 2
     if lid_like:
         edge_angle = rng.uniform(-np.pi, np.pi)
@@ -253,11 +259,11 @@ def _hinge(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoin
     ]
 
 
-def _press(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _press(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     target = int(rng.integers(2))
     point, normal = _surface_point(objects[target], rng, (0.7, 1.0))
     approach = _approach(normal, rng, 0.8)
-    press = make_pose(point + _DOWN * rng.uniform(0.0, 0.01), look_rotation(approach, rng.uniform(-np.pi, np.pi)))
+    press = make_pose(point + _DOWN * rng.uniform(0.0, 0.01), look_rotation(approach, _roll(rng, max_roll)))
     above = _offset(press, up=rng.uniform(0.08, 0.15))
     return [
         Waypoint(target, above, False, _smooth(rng)),
@@ -267,7 +273,7 @@ def _press(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoin
     ]
 
 
-def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator) -> list[Waypoint]:
+def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
     """2–6 waypoints on or near random objects, random orientations and interpolations, ≥ 1 gripper change.
 
     After the gripper closes, later waypoints anchor to the other object (a held object moves with the gripper)
@@ -286,7 +292,7 @@ def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator) -> l
         position = point + normal * rng.uniform(-0.01, 0.08)
         position[2] = max(position[2], min_height)
         approach = _approach(normal, rng, rng.uniform(0.2, 1.0))
-        pose = make_pose(position, look_rotation(approach, rng.uniform(-np.pi, np.pi)))
+        pose = make_pose(position, look_rotation(approach, _roll(rng, max_roll)))
         kind = str(rng.choice(INTERPOLATIONS))
         center = objects[anchor].vertices.mean(axis=0) + rng.normal(scale=0.03, size=3)
         waypoints.append(Waypoint(anchor, pose, gripper[index], kind, _bezier(rng), center))
@@ -295,6 +301,11 @@ def _random_waypoints(objects: list[ObjectModel], rng: np.random.Generator) -> l
             min_height = position[2] + 0.02
         previous_open = gripper[index]
     return waypoints
+
+
+def _roll(rng: np.random.Generator, max_roll: float) -> float:
+    """A turn about the approach axis, uniform within ±``max_roll`` (radians)."""
+    return rng.uniform(-max_roll, max_roll)
 
 
 def _smooth(rng: np.random.Generator) -> str:
