@@ -120,7 +120,9 @@ class InstantPolicyConfig(PreTrainedConfig):
     changes), so training steps read scene nodes instead of encoding clouds. ``gripper_flip_probability`` of the
     current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and
     rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
-    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy, averaged
+    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy (on rung 2
+    of the pseudo-task ladder 0.1 kept the network from reading its demonstrations and 0.01 did not; docs/results.md,
+    "Seventh follow-up"), averaged
     over ``noise_draws`` diffusion timesteps and noises per sample (σ and φ, which do not depend on the noisy actions,
     run once per sample: a lower-variance estimate of the same loss for the cost of ψ); N is
     drawn per batch and capped at the fewest other episodes a row's task has
