@@ -13,8 +13,13 @@ from scipy.spatial import cKDTree
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.contract import POSE_GRIPPER_NAMES
 from lerobot_instant_policy.data.lerobot_format import read_episode
-from lerobot_instant_policy.geometry.se3 import look_rotation
-from lerobot_instant_policy.geometry.se3 import invert, pose_distance, pose_from_pos_quat, transform_points
+from lerobot_instant_policy.geometry.se3 import (
+    invert,
+    look_rotation,
+    pose_distance,
+    pose_from_pos_quat,
+    transform_points,
+)
 from lerobot_instant_policy.pseudo_demos.objects import load_object
 
 REPO_ID = "local/test_pseudo"

@@ -233,7 +233,6 @@ def test_task_families_of_the_ladder(objects):
         sample_pseudo_task("x", objects, np.random.default_rng(0), family="climb")
 
 
-
 def _roll_about_approach(T_anchor_ee: np.ndarray) -> float:
     """The turn (degrees) of a gripper pose about its approach axis from ``look_rotation``'s reference roll."""
     reference = look_rotation(T_anchor_ee[:3, 2], 0.0)
