@@ -85,6 +85,39 @@ def test_train_step_benchmark_compares_fused_and_loop_adamw_on_the_ladder_recipe
     assert result["fused_over_loop"] == round(result["fused"] / result["loop"], 3)
 
 
+def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monkeypatch):
+    """``--compare-compile-model`` hands ``compile_model`` to the config in alternation (the compiled training step
+    itself is tested equal to the eager one in test_instant_policy_policy.py; compiling the small preset takes
+    minutes, so the timing is faked here)."""
+    from lerobot_instant_policy.cli import bench_policy
+    from lerobot_instant_policy.cli.bench import main
+
+    seen = []
+
+    def fake_bench(preset, **kwargs):
+        seen.append(kwargs)
+        return {"benchmark": "train-step", "compile_model": kwargs["compile_model"],
+                "samples_per_s": 2.0 if kwargs["compile_model"] else 1.0}
+
+    monkeypatch.setattr(bench_policy, "bench_train_step", fake_bench)
+    assert main(["train-step", "--batch-size", "8", "--amp", "true", "--compare-compile-model", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [kwargs["compile_model"] for kwargs in seen] == [True, False] * 3
+    assert all(kwargs["use_amp"] and kwargs["batch_size"] == 8 for kwargs in seen)
+    assert result["compiled_over_eager"] == 2.0 and "compile_model" not in result
+    assert main(["train-step", "--compile-model", "true", "--json"]) == 0
+    assert seen[-1]["compile_model"] is True
+
+
+def test_train_step_benchmark_compares_one_variant_at_a_time(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train-step", "--compare-amp", "--compare-compile-model"])
+    assert exit_info.value.code == 2
+    assert "compare one variant at a time" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("flag", ["--noise-draws", "--batch-size", "--repeats"])
 def test_train_step_benchmark_refuses_non_positive_sizes(capsys, flag):
     from lerobot_instant_policy.cli.bench import main

@@ -13,7 +13,8 @@ training samples per second and peak RSS, with the frames' scene nodes read from
 ``lerobot-train`` does (``--frame-cache false``: encoded live; ``--compare-frame-cache``: both, and their ratio).
 Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
 the torch-geometric reference layers) and ``--compare-dense-attention``, which times both in alternation in one run
-and reports their ratio.
+and reports their ratio; ``train-step`` also ``--compile-model true|false`` (σ, φ and ψ through ``torch.compile``; the
+compiling is reported as ``warmup_s``) and ``--compare-compile-model``.
 """
 
 from __future__ import annotations
@@ -175,6 +176,11 @@ def main(argv: list[str] | None = None) -> int:
                             help="AdamW's fused kernel (default: the preset's, fused on the CPU and CUDA)")
     train_step.add_argument("--compare-fused-adamw", action="store_true",
                             help="time fused and loop AdamW in alternation and report the ratio")
+    train_step.add_argument("--compile-model", choices=["true", "false"],
+                            help="σ, φ and ψ through torch.compile (--policy.compile_model; default false); the "
+                                 "compiling is timed as warmup_s, outside samples_per_s")
+    train_step.add_argument("--compare-compile-model", action="store_true",
+                            help="time compiled and eager layers in alternation and report the ratio")
     train_step.add_argument("--noise-draws", type=int,
                             help="diffusion draws per sample (--policy.noise_draws; samples/s counts samples)")
     train_step.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
@@ -202,9 +208,11 @@ def main(argv: list[str] | None = None) -> int:
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size, 1 if args.noise_draws is None else args.noise_draws) <= 0:
             parser.error("--repeats, --batch-size and --noise-draws must be positive")
-        if args.compare_dense_attention + args.compare_frame_cache + args.compare_amp + args.compare_fused_adamw > 1:
+        compares = (args.compare_dense_attention, args.compare_frame_cache, args.compare_amp,
+                    args.compare_fused_adamw, args.compare_compile_model)
+        if sum(compares) > 1:
             parser.error("compare one variant at a time: --compare-dense-attention, --compare-frame-cache, "
-                         "--compare-amp or --compare-fused-adamw")
+                         "--compare-amp, --compare-fused-adamw or --compare-compile-model")
         from .bench_policy import bench_train_step, compare_variants
 
         def run(**variant):
@@ -215,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
                 fixed["use_amp"] = args.amp == "true"
             if not args.compare_fused_adamw and args.fused_adamw is not None:
                 fixed["fused_adamw"] = args.fused_adamw == "true"
+            if not args.compare_compile_model and args.compile_model is not None:
+                fixed["compile_model"] = args.compile_model == "true"
             if args.noise_draws is not None:
                 fixed["noise_draws"] = args.noise_draws
             return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **_overrides(args),
@@ -228,6 +238,8 @@ def main(argv: list[str] | None = None) -> int:
             result = compare_variants(run, "samples_per_s", "use_amp", ("amp", "float32"))
         elif args.compare_fused_adamw:
             result = compare_variants(run, "samples_per_s", "fused_adamw", ("fused", "loop"))
+        elif args.compare_compile_model:
+            result = compare_variants(run, "samples_per_s", "compile_model", ("compiled", "eager"))
         else:
             result = run()
     elif args.command == "data":

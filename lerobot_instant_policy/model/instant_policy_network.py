@@ -152,7 +152,8 @@ class InstantPolicyNetwork(nn.Module):
             ``action_layers``, ``encoder_config``, ``num_points``, ``horizon``, ``gripper_keypoints``,
             ``num_frequencies``), the diffusion (``diffusion_train_steps``, ``inference_steps``, ``max_translation``,
             ``max_rotation_deg``, ``flow_loss_weighting``, ``gripper_loss_weight``) and the graph variants
-            (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``, ``context_scene_edges``).
+            (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``, ``context_scene_edges``), and
+            ``compile_model`` / ``compile_mode`` (σ, φ and ψ compiled for the training step).
     """
 
     def __init__(self, config: InstantPolicyConfig):
@@ -194,6 +195,9 @@ class InstantPolicyNetwork(nn.Module):
             config.max_translation,
             math.radians(config.max_rotation_deg),
         )
+        if config.compile_model:
+            for network in (self.local_network, self.context_network, self.action_network):
+                network.compile_dense(config.compile_mode)
 
     def train(self, mode: bool = True) -> InstantPolicyNetwork:
         super().train(mode)
