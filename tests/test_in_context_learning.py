@@ -1,7 +1,13 @@
 """In-context learning on rung 1 of the pseudo-task ladder (issue 11): a short ``lerobot-train`` run on reach tasks
 must read its demonstrations. Swapping each held-out task's demonstrations for another task's (same frames, same
-noise) must make the action error clearly worse: context gain > 1.3. A property of the trained model, not a timing.
-About 20 minutes on 2 CPU cores, so marked slow (skipped when CI=true)."""
+noise) must make the action error clearly worse: context gain > 1.3, and the error must beat holding still. A
+property of the trained model, not a timing.
+
+The tasks are those of ``make ladder RUNG=1sb`` (its presets, fewer tasks): turns bounded as on a tabletop and every
+demonstration of a task in the live object layout, where issue 11's figures are met (docs/results.md, "Seventh
+follow-up"); the anchor object, the pose on it and the approach stay random per task, so only the demonstrations
+tell a task's motion. With moved objects the gain is lower (1.52 after 8,000 steps there), and with full turns and
+moved objects no run has reached 1.3. About 15 minutes on 2 CPU cores, so marked slow (skipped when CI=true)."""
 
 from __future__ import annotations
 
@@ -16,23 +22,23 @@ from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.evaluation import action_error as ae
 
 TRAIN = Path(sys.executable).parent / "lerobot-train"
-STEPS = 600
+PRESETS = Path(__file__).resolve().parents[1] / "configs" / "generate"
+STEPS = 2000
 
 
 @pytest.mark.slow
 def test_a_short_rung1_run_reads_its_demonstrations(tmp_path):
-    common = ["--family", "reach", "--tasks-per-object-group", "4", "--demos-per-task", "4", "--workers", "2",
-              "--no-progress"]
-    assert generate_main(["--out", str(tmp_path / "train"), "--repo-id", "local/reach_train", "--num-tasks", "120",
-                          "--seed", "31", "--object-split", "train", *common]) == 0
-    assert generate_main(["--out", str(tmp_path / "val"), "--repo-id", "local/reach_val", "--num-tasks", "12",
-                          "--seed", "131", "--object-split", "held_out", *common]) == 0
+    for split, tasks in (("train", "120"), ("val", "12")):
+        assert generate_main([
+            "--config", str(PRESETS / f"rung1_reach_shared_bounded_{split}.json"), "--out", str(tmp_path / split),
+            "--repo-id", f"local/reach_{split}", "--num-tasks", tasks, "--no-progress",
+        ]) == 0
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
     out = tmp_path / "run"
     command = [
         str(TRAIN), "--policy.type=instant_policy", "--policy.preset=small", "--policy.reencode_action_clouds=false",
         "--policy.max_demos=2", "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100",
-        "--policy.action_scene_graph=false", "--policy.num_frequencies=4",
+        "--policy.use_amp=true", "--policy.action_scene_graph=false", "--policy.num_frequencies=4",
         "--dataset.repo_id=local/reach_train", f"--dataset.root={tmp_path / 'train'}", f"--steps={STEPS}",
         "--batch_size=8", "--num_workers=1", f"--save_freq={STEPS}", "--log_freq=100", "--wandb.enable=false",
         "--seed=1", "--policy.device=cpu", f"--output_dir={out}",
