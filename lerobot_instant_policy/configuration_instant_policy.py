@@ -122,9 +122,9 @@ class InstantPolicyConfig(PreTrainedConfig):
     computed once and stored beside the dataset (``frame_encodings``; rebuilt when the encoder or the dataset
     changes), so training steps read scene nodes instead of encoding clouds. With ``compile_model`` (as LeRobot's
     own policies name it; it needs ``dense_attention``) the dense layers of σ, φ and ψ run through ``torch.compile``
-    with ``compile_mode`` (one of :data:`COMPILE_MODES`) in the training step, while sampling stays eager: 1.16× the
-    training samples/s of the small preset at batch 8 on 2 CPU cores, after about 100 s of compiling per new shape
-    (``lerobot-ip-bench train-step --compare-compile-model``). ``gripper_flip_probability`` of the
+    with ``compile_mode`` (one of :data:`COMPILE_MODES`) in the training step, while sampling stays eager: 1.21× the
+    training samples/s of the ``make ladder`` model at batch 8 on 2 CPU cores (``lerobot-ip-bench train-step
+    --compare-compile-model``; 1.12× in ``lerobot-train``), after about 100 s of compiling per new shape. ``gripper_flip_probability`` of the
     current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and
     rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
     ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy (on rung 2
