@@ -83,6 +83,8 @@ def main() -> None:
         "reach_grip": ("reach_grip", DemoConfig(), 180.0),
         "reach_grip, objects ±45°, start roll ±15°, waypoint roll ±30° (rung2_reach_grip_bounded)": (
             "reach_grip", aligned, 30.0),
+        "grasp_place, bounded as above (rung3_grasp_place_shared_bounded)": ("grasp_place", aligned, 30.0),
+        "full, bounded as above (rung4_full_shared_bounded)": ("full", aligned, 30.0),
     }
     for name, (family, demo, roll) in variants.items():
         print(name, ceiling(family, demo, args.groups, seed=args.seed, waypoint_max_roll_deg=roll))
