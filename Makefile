@@ -62,24 +62,33 @@ train: train-data
 RUNG ?= 1
 RUNG_NAMES = 1:rung1_reach 1s:rung1_reach_shared 1b:rung1_reach_bounded 1sb:rung1_reach_shared_bounded 2:rung2_reach_grip 2b:rung2_reach_grip_bounded 2sb:rung2_reach_grip_shared_bounded 3sb:rung3_grasp_place_shared_bounded \
 	4sb:rung4_full_shared_bounded
-RUNG_NAME = $(or $(patsubst $(RUNG):%,%,$(filter $(RUNG):%,$(RUNG_NAMES))),$(error unknown RUNG=$(RUNG); known: 1 1s 1b 1sb 2 2b 2sb 3sb 4sb))
+rung_name = $(or $(patsubst $(1):%,%,$(filter $(1):%,$(RUNG_NAMES))),$(error unknown rung $(1); known: 1 1s 1b 1sb 2 2b 2sb 3sb 4sb))
+RUNG_NAME = $(call rung_name,$(RUNG))
 LADDER_STEPS ?= 8000
 # Rungs 2-4 change the gripper: on rung 2 its cross-entropy at the preset's weight 0.1 kept the network from reading
 # its demonstrations at all (gain 1.00); at 0.01 it reads them and learns the gripper better (docs/results.md, "Seventh
 # follow-up"), so rungs 2-4 use 0.01. Rung 1 never changes the gripper, so the term is about 0 there and the preset's
 # weight stays.
 LADDER_GRIPPER = $(if $(filter 1%,$(RUNG)),,--policy.gripper_loss_weight=0.01)
-LADDER_DIR = outputs/train/$(RUNG_NAME)
+# FROM=<rung>: a curriculum over the rungs, continuing that rung's finished `make ladder` network (its last checkpoint,
+# with its own config) on RUNG; rung 2 then rung 4 gave 0.63x and a gain of 1.90 on rung 4 against 0.78x and 1.46 for
+# the same 16,000 steps on rung 4 alone (docs/results.md, "Ninth follow-up"): make ladder RUNG=4sb FROM=2sb.
+FROM ?=
+LADDER_DIR = outputs/train/$(RUNG_NAME)$(if $(FROM),_from_$(FROM),)
+LADDER_FROM_CHECKPOINT = outputs/train/$(call rung_name,$(FROM))/checkpoints/last/pretrained_model
+LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.preset=small \
+	--policy.reencode_action_clouds=false --policy.max_demos=2 --policy.use_amp=true --policy.action_scene_graph=false \
+	--policy.num_frequencies=4)
 ladder: $(INSTALLED)
 	test -d outputs/$(RUNG_NAME)_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
 		--config configs/generate/$(RUNG_NAME)_val.json $(if $(wildcard outputs/$(RUNG_NAME)_val/.shards),--resume,)
 	test -d outputs/$(RUNG_NAME)_train/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
 		--config configs/generate/$(RUNG_NAME)_train.json $(if $(wildcard outputs/$(RUNG_NAME)_train/.shards),--resume,)
+	$(if $(FROM),test -d $(LADDER_FROM_CHECKPOINT) || { echo "error: FROM=$(FROM) needs a finished \
+		make ladder RUNG=$(FROM) ($(LADDER_FROM_CHECKPOINT) is missing)"; exit 1; },)
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(LADDER_DIR)/checkpoints/last), \
 		--config_path=$(LADDER_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
-		--policy.type=instant_policy --policy.preset=small --policy.reencode_action_clouds=false \
-		--policy.max_demos=2 --policy.optimizer_lr=1e-3 --policy.scheduler_warmup_steps=100 \
-		--policy.use_amp=true --policy.action_scene_graph=false --policy.num_frequencies=4 $(LADDER_GRIPPER) \
+		$(LADDER_START) --policy.optimizer_lr=1e-3 --policy.scheduler_warmup_steps=100 $(LADDER_GRIPPER) \
 		--dataset.repo_id=local/$(RUNG_NAME)_train --dataset.root=outputs/$(RUNG_NAME)_train \
 		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=1000 --seed=1 \
 		--wandb.enable=false --output_dir=$(LADDER_DIR))
