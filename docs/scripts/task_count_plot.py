@@ -10,17 +10,8 @@ Usage: python docs/scripts/task_count_plot.py OUT COUNT=HELD_OUT.json:TRAINING.j
 import json
 import sys
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-
-def point(path: str) -> dict:
-    result = json.load(open(path))
-    own, hold = result["settings"][0]["translation_mm"], result["hold"]["translation_mm"]
-    return {"own_over_hold": round(own / hold, 3), "context_gain": result["context_gain"]["translation"]}
-
+# the same reading of one action-error output, and pyplot on the Agg backend that the script selects
+from rung1_study_plot import plt, point
 
 out, arguments = sys.argv[1], sys.argv[2:]
 runs = {}
