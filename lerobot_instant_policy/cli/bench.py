@@ -15,6 +15,8 @@ Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
 the torch-geometric reference layers) and ``--compare-dense-attention``, which times both in alternation in one run
 and reports their ratio; ``train-step`` also ``--compile-model true|false`` (σ, φ and ψ through ``torch.compile``; the
 compiling is reported as ``warmup_s``) and ``--compare-compile-model``.
+``lerobot-ip-bench lerobot-train --root DIR``: ``lerobot-train``'s own samples per second on a dataset, end to end
+(data loader, LeRobot's loop, the update), for each ``--num-workers`` and ``--omp-wait-policy`` in alternation.
 """
 
 from __future__ import annotations
@@ -192,6 +194,23 @@ def main(argv: list[str] | None = None) -> int:
     data.add_argument("--horizon", type=int, default=8)
     data.add_argument("--repeats", type=int, default=3)
     data.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    train = commands.add_parser("lerobot-train", help="lerobot-train's own samples per second on a dataset (loader, "
+                                                      "loop and update), per loader workers and OpenMP wait policy")
+    train.add_argument("--root", required=True, help="a LeRobotDataset in the data contract (frame encodings are "
+                                                     "built beside it by the first run when missing)")
+    train.add_argument("--repo-id", help="default: local/<the root's name>")
+    train.add_argument("--steps", type=int, default=500, help="training steps per run")
+    train.add_argument("--skip", type=int, default=200, help="log lines up to this step do not count (warm-up)")
+    train.add_argument("--log-every", type=int, default=50, help="--log_freq of each run")
+    train.add_argument("--batch-size", type=int, default=8)
+    train.add_argument("--threads", type=int, default=2, help="OMP_NUM_THREADS of each run")
+    train.add_argument("--num-workers", type=int, nargs="+", default=[1], help="loader workers to compare")
+    train.add_argument("--omp-wait-policy", nargs="+", default=["default"], choices=["default", "active", "passive"],
+                       help="OMP_WAIT_POLICY values to compare (default: unset)")
+    train.add_argument("--compile-model", choices=["true", "false"], default="false",
+                       help="--policy.compile_model of every run (compiling falls within --skip)")
+    train.add_argument("--rounds", type=int, default=1, help="every variant runs this many times, in alternation")
+    train.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     args = parser.parse_args(argv)
     if args.command == "inference":
         if args.repeats <= 0:
@@ -242,6 +261,18 @@ def main(argv: list[str] | None = None) -> int:
             result = compare_variants(run, "samples_per_s", "compile_model", ("compiled", "eager"))
         else:
             result = run()
+    elif args.command == "lerobot-train":
+        if min(args.steps, args.log_every, args.batch_size, args.threads, args.rounds) <= 0 or args.skip < 0 \
+                or min(args.num_workers) < 0:
+            parser.error("--steps, --log-every, --batch-size, --threads and --rounds must be positive, --skip and "
+                         "--num-workers >= 0")
+        if args.skip >= args.steps:
+            parser.error(f"--skip ({args.skip}) must be below --steps ({args.steps})")
+        from .bench_lerobot_train import bench_lerobot_train
+
+        result = bench_lerobot_train(args.root, args.repo_id, args.steps, args.skip, args.batch_size, args.log_every,
+                                     args.threads, tuple(args.num_workers), tuple(args.omp_wait_policy),
+                                     args.compile_model == "true", args.rounds)
     elif args.command == "data":
         if min(args.rows, args.horizon, args.repeats) <= 0:
             parser.error("--rows, --horizon and --repeats must be positive")
