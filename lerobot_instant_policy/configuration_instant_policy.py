@@ -124,7 +124,11 @@ class InstantPolicyConfig(PreTrainedConfig):
     own policies name it; it needs ``dense_attention``) the dense layers of σ, φ and ψ run through ``torch.compile``
     with ``compile_mode`` (one of :data:`COMPILE_MODES`) in the training step, while sampling stays eager: 1.21× the
     training samples/s of the ``make ladder`` model at batch 8 on 2 CPU cores (``lerobot-ip-bench train-step
-    --compare-compile-model``; 1.12× in ``lerobot-train``), after about 100 s of compiling per new shape. ``gripper_flip_probability`` of the
+    --compare-compile-model``; 1.12× in ``lerobot-train``), after about 100 s of compiling per new shape. With
+    ``compile_inference`` the same layers are compiled for sampling too (a control step under ``inference_mode``; set
+    it when loading a checkpoint, ``--policy.compile_inference=true``): see ``lerobot-ip-bench inference
+    --compare-compile-inference`` for its ratio and the seconds the first control step spends compiling (again for
+    each new number of demonstrations or batch size). ``gripper_flip_probability`` of the
     current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and
     rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
     ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy (on rung 2
@@ -175,6 +179,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     context_scene_edges: bool = False
     cache_frame_encodings: bool = True
     compile_model: bool = False
+    compile_inference: bool = False
     compile_mode: str = "default"
     flow_loss_weighting: str = "uniform"
     noise_draws: int = 1
@@ -267,8 +272,9 @@ class InstantPolicyConfig(PreTrainedConfig):
             )
         if self.compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {list(COMPILE_MODES)}, got {self.compile_mode!r}")
-        if self.compile_model and not self.dense_attention:
-            raise ValueError("compile_model compiles the dense layers: it needs dense_attention=true")
+        if (self.compile_model or self.compile_inference) and not self.dense_attention:
+            raise ValueError("compile_model and compile_inference compile the dense layers: they need "
+                             "dense_attention=true")
         if not isinstance(self.noise_draws, int) or self.noise_draws < 1:
             raise ValueError(f"noise_draws must be a positive integer, got {self.noise_draws!r}")
         if self.gripper_loss_weight < 0:

@@ -130,7 +130,8 @@ def test_optimizer_and_scheduler_presets():
         ({"flow_loss_weighting": "snr"}, r"flow_loss_weighting must be one of \['uniform', 'noise'\]"),
         ({"mlp_ratio": 0}, "mlp_ratio must be at least 1"),
         ({"compile_mode": "fast"}, r"compile_mode must be one of \['default', 'reduce-overhead'"),
-        ({"compile_model": True, "dense_attention": False}, "compile_model compiles the dense layers"),
+        ({"compile_model": True, "dense_attention": False}, "compile_model and compile_inference compile the dense"),
+        ({"compile_inference": True, "dense_attention": False}, "compile_model and compile_inference compile the dense"),
         ({"max_translation": 0.0}, "max_translation and max_rotation_deg must be positive"),
     ],
 )

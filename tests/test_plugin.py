@@ -109,6 +109,33 @@ def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monke
     assert seen[-1]["compile_model"] is True
 
 
+def test_inference_benchmark_alternates_compiled_and_eager_sampling(capsys, monkeypatch):
+    """``--compare-compile-inference`` hands ``compile_inference`` to the config in alternation (compiled sampling is
+    tested equal to eager sampling in test_instant_policy_policy.py; the timing is faked here)."""
+    from lerobot_instant_policy.cli import bench_policy
+    from lerobot_instant_policy.cli.bench import main
+
+    seen = []
+
+    def fake_bench(preset, **kwargs):
+        seen.append(kwargs)
+        return {"benchmark": "inference", "compile_inference": kwargs["compile_inference"],
+                "ms_per_control_step": 10.0 if kwargs["compile_inference"] else 15.0}
+
+    monkeypatch.setattr(bench_policy, "bench_inference", fake_bench)
+    assert main(["inference", "--action-scene-graph", "false", "--compare-compile-inference", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [kwargs["compile_inference"] for kwargs in seen] == [True, False] * 3
+    assert all(kwargs["action_scene_graph"] is False for kwargs in seen)
+    assert result["compiled"] == 10.0 and result["eager"] == 15.0 and "compile_inference" not in result
+    assert result["compiled_over_eager"] == round(10.0 / 15.0, 3)
+    assert main(["inference", "--compile-inference", "true", "--json"]) == 0
+    assert seen[-1]["compile_inference"] is True
+    with pytest.raises(SystemExit) as exit_info:
+        main(["inference", "--compare-compile-inference", "--compare-dense-attention"])
+    assert exit_info.value.code == 2 and "compare one variant at a time" in capsys.readouterr().err
+
+
 def test_train_step_benchmark_compares_one_variant_at_a_time(capsys):
     from lerobot_instant_policy.cli.bench import main
 

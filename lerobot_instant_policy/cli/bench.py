@@ -13,8 +13,10 @@ training samples per second and peak RSS, with the frames' scene nodes read from
 ``lerobot-train`` does (``--frame-cache false``: encoded live; ``--compare-frame-cache``: both, and their ratio).
 Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
 the torch-geometric reference layers) and ``--compare-dense-attention``, which times both in alternation in one run
-and reports their ratio; ``train-step`` also ``--compile-model true|false`` (σ, φ and ψ through ``torch.compile``; the
-compiling is reported as ``warmup_s``) and ``--compare-compile-model``.
+and reports their ratio; ``inference`` also ``--compile-inference true|false`` (σ, φ and ψ through ``torch.compile``
+for sampling) and ``--compare-compile-inference``; ``train-step`` also ``--compile-model true|false`` (σ, φ and ψ
+through ``torch.compile`` for the training step) and ``--compare-compile-model``; both report the compiling as
+``warmup_s``.
 ``lerobot-ip-bench lerobot-train --root DIR``: ``lerobot-train``'s own samples per second on a dataset, end to end
 (data loader, LeRobot's loop, the update), for each ``--num-workers`` and ``--omp-wait-policy`` in alternation.
 """
@@ -160,6 +162,11 @@ def main(argv: list[str] | None = None) -> int:
     inference.add_argument("--repeats", type=int, default=5)
     inference.add_argument("--policy-path", help="time this checkpoint (a pretrained_model directory) instead of a fresh preset")
     _add_variant_arguments(inference)
+    inference.add_argument("--compile-inference", choices=["true", "false"],
+                           help="σ, φ and ψ through torch.compile for sampling (--policy.compile_inference; default "
+                                "false); the first control step, which compiles, is reported as warmup_s")
+    inference.add_argument("--compare-compile-inference", action="store_true",
+                           help="time compiled and eager sampling in alternation and report the ratio")
     inference.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
     train_step = commands.add_parser("train-step", help="instant_policy training samples per second, peak memory")
     train_step.add_argument("--preset", choices=["small", "paper"], default="small")
@@ -217,13 +224,22 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--repeats must be positive")
         from .bench_policy import bench_inference, compare_variants
 
-        def run(**dense):
-            return bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path,
-                                   **_overrides(args), **dense)
+        if args.compare_dense_attention and args.compare_compile_inference:
+            parser.error("compare one variant at a time: --compare-dense-attention or --compare-compile-inference")
 
-        result = run()
+        def run(**variant):
+            fixed = {}
+            if not args.compare_compile_inference and args.compile_inference is not None:
+                fixed["compile_inference"] = args.compile_inference == "true"
+            return bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path,
+                                   **_overrides(args), **fixed, **variant)
+
         if args.compare_dense_attention:
             result = compare_variants(run, "ms_per_control_step", "dense_attention", ("dense", "reference"))
+        elif args.compare_compile_inference:
+            result = compare_variants(run, "ms_per_control_step", "compile_inference", ("compiled", "eager"))
+        else:
+            result = run()
     elif args.command == "train-step":
         if min(args.repeats, args.batch_size, 1 if args.noise_draws is None else args.noise_draws) <= 0:
             parser.error("--repeats, --batch-size and --noise-draws must be positive")

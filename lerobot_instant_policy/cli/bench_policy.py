@@ -78,7 +78,9 @@ def bench_inference(
         STATE_KEY: torch.from_numpy(live.state).to(config.device),
         "task": ["bench"],
     }
-    policy.predict_action_chunk(batch)  # warm-up
+    start = time.perf_counter()
+    policy.predict_action_chunk(batch)  # warm-up: compiles the layers where config.compile_inference
+    warmup_s = time.perf_counter() - start
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -89,11 +91,12 @@ def bench_inference(
     return {
         "benchmark": "inference", "preset": preset, "checkpoint": policy_path, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "dense_attention": config.dense_attention, "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
+        "dense_attention": config.dense_attention, "compile_inference": config.compile_inference,
+        "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
         "points": config.num_points, "batch": 1,
         "parameters": sum(parameter.numel() for parameter in policy.parameters()),
         "ms_per_control_step": round(1000 * statistics.median(times), 1),
-        "runs_ms": [round(1000 * value, 1) for value in times],
+        "runs_ms": [round(1000 * value, 1) for value in times], "warmup_s": round(warmup_s, 1),
     }
 
 

@@ -153,7 +153,8 @@ class InstantPolicyNetwork(nn.Module):
             ``num_frequencies``), the diffusion (``diffusion_train_steps``, ``inference_steps``, ``max_translation``,
             ``max_rotation_deg``, ``flow_loss_weighting``, ``gripper_loss_weight``) and the graph variants
             (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``, ``context_scene_edges``), and
-            ``compile_model`` / ``compile_mode`` (σ, φ and ψ compiled for the training step).
+            ``compile_model`` / ``compile_inference`` / ``compile_mode`` (σ, φ and ψ compiled for the training step,
+            for sampling).
     """
 
     def __init__(self, config: InstantPolicyConfig):
@@ -195,9 +196,10 @@ class InstantPolicyNetwork(nn.Module):
             config.max_translation,
             math.radians(config.max_rotation_deg),
         )
-        if config.compile_model:
+        if config.compile_model or config.compile_inference:
             for network in (self.local_network, self.context_network, self.action_network):
-                network.compile_dense(config.compile_mode)
+                network.compile_dense(config.compile_mode, training=config.compile_model,
+                                      inference=config.compile_inference)
 
     def train(self, mode: bool = True) -> InstantPolicyNetwork:
         super().train(mode)
