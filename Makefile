@@ -28,7 +28,8 @@ pseudo-demos: $(INSTALLED)
 	$(VENV)/bin/lerobot-ip-generate --config configs/generate/default.json --overwrite \
 		--preview outputs/pseudo_demos_preview.png
 
-# The shipped checkpoint's recipe (docs/results.md): pseudo-demonstrations only, 2 CPU cores, about an hour.
+# The previous shipped checkpoint's recipe (issue 6, docs/results.md): pseudo-demonstrations only, 2 CPU cores, about an
+# hour. The shipped checkpoint now comes from: make ladder RUNG=2sb; make ladder RUNG=4sb FROM=2sb.
 # Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
 TRAIN_DIR ?= outputs/train/instant_policy_small
 TRAIN_STEPS ?= 2000

@@ -17,7 +17,7 @@ from .demo_summary import EpisodeOutcome, draw_contact_sheet, episode_outcomes, 
 from .eval_suite import SuiteSettings, run_task
 
 SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "checkpoints" / "instant_policy"
-DEFAULT_TASK = "open_drawer"
+DEFAULT_TASK = "pick_and_lift"
 
 
 def best_policy(checkpoint: Path) -> tuple[str, str | None, str]:
