@@ -85,21 +85,28 @@ def test_train_step_benchmark_compares_fused_and_loop_adamw_on_the_ladder_recipe
     assert result["fused_over_loop"] == round(result["fused"] / result["loop"], 3)
 
 
-def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monkeypatch):
-    """``--compare-compile-model`` hands ``compile_model`` to the config in alternation (the compiled training step
-    itself is tested equal to the eager one in test_instant_policy_policy.py; compiling the small preset takes
-    minutes, so the timing is faked here)."""
+def fake_timing(monkeypatch, bench: str, option: str, figure: str, on: float, off: float) -> list[dict]:
+    """Replace ``bench_policy.<bench>`` by a fake whose ``figure`` is ``on`` or ``off`` as the config ``option`` is;
+    returns the keyword arguments of every call, in order."""
     from lerobot_instant_policy.cli import bench_policy
-    from lerobot_instant_policy.cli.bench import main
 
     seen = []
 
     def fake_bench(preset, **kwargs):
         seen.append(kwargs)
-        return {"benchmark": "train-step", "compile_model": kwargs["compile_model"],
-                "samples_per_s": 2.0 if kwargs["compile_model"] else 1.0}
+        return {"benchmark": bench, option: kwargs[option], figure: on if kwargs[option] else off}
 
-    monkeypatch.setattr(bench_policy, "bench_train_step", fake_bench)
+    monkeypatch.setattr(bench_policy, bench, fake_bench)
+    return seen
+
+
+def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monkeypatch):
+    """``--compare-compile-model`` hands ``compile_model`` to the config in alternation (the compiled training step
+    itself is tested equal to the eager one in test_instant_policy_policy.py; compiling the small preset takes
+    minutes, so the timing is faked here)."""
+    from lerobot_instant_policy.cli.bench import main
+
+    seen = fake_timing(monkeypatch, "bench_train_step", "compile_model", "samples_per_s", 2.0, 1.0)
     assert main(["train-step", "--batch-size", "8", "--amp", "true", "--compare-compile-model", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert [kwargs["compile_model"] for kwargs in seen] == [True, False] * 3
@@ -112,17 +119,9 @@ def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monke
 def test_inference_benchmark_alternates_compiled_and_eager_sampling(capsys, monkeypatch):
     """``--compare-compile-inference`` hands ``compile_inference`` to the config in alternation (compiled sampling is
     tested equal to eager sampling in test_instant_policy_policy.py; the timing is faked here)."""
-    from lerobot_instant_policy.cli import bench_policy
     from lerobot_instant_policy.cli.bench import main
 
-    seen = []
-
-    def fake_bench(preset, **kwargs):
-        seen.append(kwargs)
-        return {"benchmark": "inference", "compile_inference": kwargs["compile_inference"],
-                "ms_per_control_step": 10.0 if kwargs["compile_inference"] else 15.0}
-
-    monkeypatch.setattr(bench_policy, "bench_inference", fake_bench)
+    seen = fake_timing(monkeypatch, "bench_inference", "compile_inference", "ms_per_control_step", 10.0, 15.0)
     assert main(["inference", "--action-scene-graph", "false", "--compare-compile-inference", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert [kwargs["compile_inference"] for kwargs in seen] == [True, False] * 3

@@ -21,8 +21,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
+
+from ..training.rounds import LADDER_POLICY_ARGS, MODULES
 
 #: One of LeRobot's training log lines (``lerobot_train.py``): the step, then the averages of its log window.
 LOG_LINE = re.compile(r"step:(?P<step>[0-9.]+[KMBT]?) .*updt_s:(?P<updt_s>[0-9.]+) data_s:(?P<data_s>[0-9.]+)")
@@ -65,12 +68,10 @@ def summarize(lines: list[LogLine], batch_size: int, skip: int) -> dict:
 
 def lerobot_train_command(root: str, repo_id: str, output_dir: str, steps: int, batch_size: int, num_workers: int,
                           log_every: int, compile_model: bool) -> list[str]:
-    """``lerobot-train`` with the ``make ladder`` model and recipe (its Makefile flags), no checkpoints, no W&B."""
+    """``lerobot-train`` with the ``make ladder`` model and recipe (the policy flags ``lerobot-ip-train-rounds`` starts
+    a fresh run with), no checkpoints, no W&B."""
     return [
-        sys.executable, "-m", "lerobot.scripts.lerobot_train",
-        "--policy.type=instant_policy", "--policy.preset=small", "--policy.reencode_action_clouds=false",
-        "--policy.max_demos=2", "--policy.use_amp=true", "--policy.action_scene_graph=false",
-        "--policy.num_frequencies=4", "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100",
+        sys.executable, "-m", MODULES["lerobot-train"], "--policy.type=instant_policy", *LADDER_POLICY_ARGS,
         f"--policy.compile_model={str(compile_model).lower()}", "--policy.push_to_hub=false",
         f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
         f"--steps={steps}", f"--batch_size={batch_size}", f"--num_workers={num_workers}", f"--log_freq={log_every}",
@@ -82,10 +83,10 @@ def lerobot_train_command(root: str, repo_id: str, output_dir: str, steps: int, 
 def run_lerobot_train(command: list[str], env: dict[str, str]) -> list[LogLine]:
     """Run ``command``, stamping its log lines on arrival; a failed run raises with the end of its output."""
     process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-    lines, tail = [], []
+    lines, tail = [], deque(maxlen=20)
     for raw in process.stdout:  # tqdm's carriage returns stay inside a line; LeRobot's log ends it
         text = raw.decode(errors="replace")
-        tail = (tail + [text])[-20:]
+        tail.append(text)
         line = parse_log_line(text, time.perf_counter())
         if line is not None:
             lines.append(line)
