@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo pseudo-demos train-data train train-gpu ladder results results-suite results-study eval-suite perception-eval test install clean
+.PHONY: demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-study eval-suite perception-eval test install clean
 
 install: $(INSTALLED)
 
@@ -28,9 +28,9 @@ pseudo-demos: $(INSTALLED)
 	$(VENV)/bin/lerobot-ip-generate --config configs/generate/default.json --overwrite \
 		--preview outputs/pseudo_demos_preview.png
 
-# The previous shipped checkpoint's recipe (issue 6, docs/results.md): pseudo-demonstrations only, 2 CPU cores, about an
-# hour. The shipped checkpoint now comes from: make ladder RUNG=2sb; make ladder RUNG=4sb FROM=2sb.
-# Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
+# The default model (InstantPolicyConfig's defaults: the shipped model) on the default pseudo-demonstrations, 2 CPU
+# cores. The shipped checkpoint itself comes from: make ladder RUNG=2sb; make ladder RUNG=4sb FROM=2sb, continued by
+# make campaign. Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
 TRAIN_DIR ?= outputs/train/instant_policy_small
 TRAIN_STEPS ?= 2000
 train-data: $(INSTALLED)
@@ -41,8 +41,7 @@ train-data: $(INSTALLED)
 train: train-data
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(TRAIN_DIR)/checkpoints/last), \
 		--config_path=$(TRAIN_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
-		--policy.type=instant_policy --policy.preset=small --policy.reencode_action_clouds=false \
-		--policy.optimizer_lr=2e-4 --policy.scheduler_warmup_steps=200 \
+		--policy.type=instant_policy \
 		--dataset.repo_id=local/pseudo_demos_train --dataset.root=outputs/pseudo_demos_train \
 		--steps=$(TRAIN_STEPS) --batch_size=16 --num_workers=1 --log_freq=50 --save_freq=250 --seed=1000 \
 		--wandb.enable=false --output_dir=$(TRAIN_DIR))
@@ -66,20 +65,15 @@ RUNG_NAMES = 1:rung1_reach 1s:rung1_reach_shared 1b:rung1_reach_bounded 1sb:rung
 rung_name = $(or $(patsubst $(1):%,%,$(filter $(1):%,$(RUNG_NAMES))),$(error unknown rung $(1); known: 1 1s 1b 1sb 2 2b 2sb 3sb 4sb))
 RUNG_NAME = $(call rung_name,$(RUNG))
 LADDER_STEPS ?= 8000
-# Rungs 2-4 change the gripper: on rung 2 its cross-entropy at the preset's weight 0.1 kept the network from reading
-# its demonstrations at all (gain 1.00); at 0.01 it reads them and learns the gripper better (docs/results.md, "Seventh
-# follow-up"), so rungs 2-4 use 0.01. Rung 1 never changes the gripper, so the term is about 0 there and the preset's
-# weight stays.
-LADDER_GRIPPER = $(if $(filter 1%,$(RUNG)),,--policy.gripper_loss_weight=0.01)
 # FROM=<rung>: a curriculum over the rungs, continuing that rung's finished `make ladder` network (its last checkpoint,
 # with its own config) on RUNG; rung 2 then rung 4 gave 0.63x and a gain of 1.90 on rung 4 against 0.78x and 1.46 for
 # the same 16,000 steps on rung 4 alone (docs/results.md, "Ninth follow-up"): make ladder RUNG=4sb FROM=2sb.
 FROM ?=
 LADDER_DIR = outputs/train/$(RUNG_NAME)$(if $(FROM),_from_$(FROM),)
 LADDER_FROM_CHECKPOINT = outputs/train/$(call rung_name,$(FROM))/checkpoints/last/pretrained_model
-LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.preset=small \
-	--policy.reencode_action_clouds=false --policy.max_demos=2 --policy.use_amp=true --policy.action_scene_graph=false \
-	--policy.num_frequencies=4)
+# A fresh network is InstantPolicyConfig's defaults (the shipped model and its recipe: lr 1e-3, 100 warmup steps,
+# gripper weight 0.01), trained in bfloat16 autocast.
+LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.use_amp=true)
 ladder: $(INSTALLED)
 	test -d outputs/$(RUNG_NAME)_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
 		--config configs/generate/$(RUNG_NAME)_val.json $(if $(wildcard outputs/$(RUNG_NAME)_val/.shards),--resume,)
@@ -89,7 +83,7 @@ ladder: $(INSTALLED)
 		make ladder RUNG=$(FROM) ($(LADDER_FROM_CHECKPOINT) is missing)"; exit 1; },)
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(LADDER_DIR)/checkpoints/last), \
 		--config_path=$(LADDER_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
-		$(LADDER_START) --policy.optimizer_lr=1e-3 --policy.scheduler_warmup_steps=100 $(LADDER_GRIPPER) \
+		$(LADDER_START) \
 		--dataset.repo_id=local/$(RUNG_NAME)_train --dataset.root=outputs/$(RUNG_NAME)_train \
 		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=1000 --seed=1 \
 		--wandb.enable=false --output_dir=$(LADDER_DIR))
@@ -110,6 +104,17 @@ TRAIN_ROUNDS_ON_PATH := $(shell command -v lerobot-ip-train-rounds 2>/dev/null)
 train-gpu: $(if $(TRAIN_ROUNDS_ON_PATH),,$(INSTALLED))
 	$(or $(TRAIN_ROUNDS_ON_PATH),$(VENV)/bin/lerobot-ip-train-rounds) --config configs/train_rounds/gpu.json $(TRAIN_GPU_ARGS)
 
+# Issue 30's training campaign on the 2-core CPU (configs/train_rounds/cpu_campaign.json): the shipped checkpoint
+# continued on rounds of 120 fresh pseudo-tasks of the full generator with bounded turns, each round generated while
+# the previous one trains, the fraction of one-layout tasks annealed 0.5 -> 0 over the first five rounds (objects
+# move between demonstrations afterwards, the paper's setting), 5,000 steps of batch 8 per round in bfloat16 autocast
+# (1.28x float32 measured on this AVX-512-bf16 CPU without AMX; compile 1.05x, not worth its 2 minutes per round).
+# Validation: 24 held-out moved-object pseudo-tasks (configs/generate/rung4_full_bounded_val.json). Stop it any time
+# and run it again to resume; raise --rounds to go on past the last.
+CAMPAIGN_ARGS ?=
+campaign: $(INSTALLED)
+	OMP_NUM_THREADS=2 $(VENV)/bin/lerobot-ip-train-rounds --config configs/train_rounds/cpu_campaign.json $(CAMPAIGN_ARGS)
+
 # docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
 # every task, 10 episodes each (issue 14's RGB-D vs segmented table).
 perception-eval: $(INSTALLED)
@@ -118,19 +123,23 @@ perception-eval: $(INSTALLED)
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy demo_replay --obs-type rgbd --episodes 10 \
 		--out outputs/perception_eval --run-name rgbd
 
-# docs/results.md: every task, 20 episodes, N=2, for the three policies; then the K / N / L study on STUDY_TASKS.
+# docs/results.md: the suite protocol (evaluation/suite.py): every task x 3 disjoint demonstration sets x 10 episodes,
+# N=2, the same seeds for every policy; instant_policy also with each task handed the next task's demonstrations (the
+# context swap); then the table with Wilson 95% intervals, grouped by task family. Then the K / N / L study.
 CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy
-SUITE = $(VENV)/bin/lerobot-ip-eval-suite --episodes 20 --out outputs/results/suite
+SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo-sets 3 --out outputs/results/suite
 STUDY = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy instant_policy --policy-path $(CKPT) \
-	--tasks $(STUDY_TASKS) --episodes 10 --out outputs/results/study
+	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --out outputs/results/study
 STUDY_TASKS ?= push_button,open_drawer
 results: results-suite results-study
 
 results-suite: $(INSTALLED)
-	OMP_NUM_THREADS=1 $(SUITE) --policy instant_policy --policy-path $(CKPT)
-	OMP_NUM_THREADS=1 $(SUITE) --policy demo_replay
-	OMP_NUM_THREADS=1 $(SUITE) --policy do_nothing
+	$(SUITE) --policy instant_policy --policy-path $(CKPT)
+	$(SUITE) --policy instant_policy --policy-path $(CKPT) --swap
+	$(SUITE) --policy demo_replay
+	$(SUITE) --policy do_nothing
 	$(VENV)/bin/lerobot-ip-eval-table instant_policy=outputs/results/suite/runs/instant_policy \
+		instant_policy-swap=outputs/results/suite/runs/instant_policy-swap \
 		demo_replay=outputs/results/suite/runs/demo_replay do_nothing=outputs/results/suite/runs/do_nothing \
 		--out docs/results_suite
 

@@ -63,7 +63,7 @@ class InstantPolicyPreset:
 PRESETS: dict[str, InstantPolicyPreset] = {
     "small": InstantPolicyPreset(
         hidden_dim=128, num_heads=4, local_layers=2, context_layers=2, action_layers=2, encoder_preset="small",
-        optimizer_lr=1e-4,
+        optimizer_lr=1e-3,
     ),
     "paper": InstantPolicyPreset(
         hidden_dim=1024, num_heads=16, local_layers=2, context_layers=2, action_layers=2, encoder_preset="paper",
@@ -77,13 +77,19 @@ PRESETS: dict[str, InstantPolicyPreset] = {
 class InstantPolicyConfig(PreTrainedConfig):
     """Instant Policy (Vosylius & Johns, ICLR 2025): in-context imitation by diffusion over a heterogeneous graph.
 
+    The defaults are the model that ships (``lerobot_instant_policy/assets/checkpoints/instant_policy``): with no
+    ``--policy.*`` flag, ``lerobot-train --policy.type=instant_policy`` trains that model with its recipe. Where the
+    shipped model departs from the paper, the field says so and names the paper's value; old checkpoints keep the
+    values saved in their ``config.json``.
+
     Inputs: ``observation.pointcloud (P, 3)`` segmented object points in the world frame (m) and
     ``observation.state (8,)`` the EE pose in the world frame (xyz, quaternion xyzw) and ``gripper_open``.
     Output: ``action (8,)`` absolute EE target poses in the same layout; the network predicts ``horizon`` of them.
 
     Context and prediction:
         num_demos: N, demonstrations given as context at evaluation.
-        min_demos, max_demos: range from which N is drawn per training batch.
+        min_demos, max_demos: range from which N is drawn per training batch (the paper: 1…5; shipped: 1…2, the
+            N it is evaluated with, which learned the context faster on CPU budgets).
         num_waypoints: L, waypoints each demonstration is reduced to (``data.waypoints.extract_waypoints``).
         horizon: T, future actions predicted per step; action ``j`` is ``j + 1`` frames ahead.
         inference_steps: K, DDIM denoising steps at inference.
@@ -98,7 +104,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     number of graph-transformer layers of σ (``local_layers``, the local graphs), φ (``context_layers``,
     demonstrations → current) and ψ (``action_layers``, current → actions); ``mlp_ratio``, the width of each
     layer's feed-forward block over ``hidden_dim``; ``num_frequencies``, the sinusoidal frequencies of the edge
-    and timestep encodings.
+    and timestep encodings (the paper: 10; shipped: 4, the best held-out context gain measured on CPU).
 
     Geometry encoder (frozen): ``encoder_preset`` (``None``: the preset's) names its architecture; its weights come
     from ``encoder_weights`` (a ``.safetensors`` written by ``lerobot-ip-pretrain-encoder`` with its ``.json``
@@ -106,41 +112,42 @@ class InstantPolicyConfig(PreTrainedConfig):
     ``pretrained_encoder=False`` uses a randomly initialised frozen encoder instead (tests, benchmarks).
     Weights whose recorded architecture differs from ``encoder_preset`` are refused. A checkpoint carries the
     encoder in its ``model.safetensors``, so the weights file is only read when a policy is built from scratch.
-    ``reencode_action_clouds``: re-encode the live cloud in every action frame at every denoising step (the
-    paper's choice) rather than moving the encoded scene nodes rigidly into the action frames.
-    ``dense_attention``: run the graph-transformer layers of σ, φ and ψ in a dense batched layout (the
-    same weights and outputs as the torch-geometric ``TransformerConv`` layers, which ``False`` runs instead).
+
+    The graph (the paper's graph: ``action_scene_graph=true reencode_action_clouds=true num_frequencies=10``):
     ``action_scene_graph``: the action gripper nodes run σ on the scene seen from their noisy poses (the paper's
-    graph); ``False`` is an ablation (issue 11) in which they see the scene only through the current nodes, so
-    every path from the scene to an action passes the demonstrations' φ.
-    ``context_scene_edges``: φ's current gripper nodes also attend to the live scene nodes (edges scene → current,
-    ``enc(k − p)`` in the current EE frame), so that which part of the scene they read can depend on the
-    demonstrations; in the paper's graph (``False``) the scene is read only by σ, before any demonstration is seen,
-    and a summary of every object must then pass φ (issue 11).
+    graph); ``False`` (shipped) lets them see the scene only through the current nodes, so every path from the scene
+    to an action passes the demonstrations' φ (issue 11: a higher held-out context gain in one object layout).
+    ``reencode_action_clouds`` (only with ``action_scene_graph``): re-encode the live cloud in every action frame at
+    every denoising step (the paper's choice) rather than moving the encoded scene nodes rigidly into the action
+    frames. ``context_scene_edges``: φ's current gripper nodes also attend to the live scene nodes (edges scene →
+    current, ``enc(k − p)`` in the current EE frame), so that which part of the scene they read can depend on the
+    demonstrations; in the paper's graph (``False``) the scene is read only by σ, before any demonstration is seen.
+    ``dense_attention``: run the graph-transformer layers of σ, φ and ψ in a dense batched layout (the same weights
+    and outputs as the torch-geometric ``TransformerConv`` layers, which ``False`` runs instead).
 
     Training: with ``cache_frame_encodings`` the frozen encoder's output for every frame of the training dataset is
     computed once and stored beside the dataset (``frame_encodings``; rebuilt when the encoder or the dataset
     changes), so training steps read scene nodes instead of encoding clouds. With ``compile_model`` (as LeRobot's
     own policies name it; it needs ``dense_attention``) the dense layers of σ, φ and ψ run through ``torch.compile``
-    with ``compile_mode`` (one of :data:`COMPILE_MODES`) in the training step, while sampling stays eager: 1.21× the
-    training samples/s of the ``make ladder`` model at batch 8 on 2 CPU cores (``lerobot-ip-bench train-step
-    --compare-compile-model``; 1.12× in ``lerobot-train``), after about 100 s of compiling per new shape. With
-    ``compile_inference`` the same layers are compiled for sampling too (a control step under ``inference_mode``; set
-    it when loading a checkpoint, ``--policy.compile_inference=true``): see ``lerobot-ip-bench inference
-    --compare-compile-inference`` for its ratio and the seconds the first control step spends compiling (again for
-    each new number of demonstrations or batch size). ``gripper_flip_probability`` of the
+    with ``compile_mode`` (one of :data:`COMPILE_MODES`) in the training step, while sampling stays eager
+    (``lerobot-ip-bench train-step --compare-compile-model`` measures its ratio on the machine at hand), after about
+    100 s of compiling per new shape. With ``compile_inference`` the same layers are compiled for sampling too (a
+    control step under ``inference_mode``; set it when loading a checkpoint, ``--policy.compile_inference=true``): see
+    ``lerobot-ip-bench inference --compare-compile-inference`` for its ratio and the seconds the first control step
+    spends compiling (again for each new number of demonstrations or batch size). LeRobot's ``use_amp`` trains in
+    bfloat16 autocast on the CPU: faster on CPUs with AMX, slower without (0.74× float32 measured on AVX-512 bf16
+    without AMX), so it stays off unless ``--compare-amp`` measures a gain. ``gripper_flip_probability`` of the
     current gripper state (the input only, never the label) being flipped per sample; the loss is the translation and
     rotation flow errors (weighted over diffusion timesteps by ``flow_loss_weighting``: ``uniform``, the paper's, or
-    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy (on rung 2
-    of the pseudo-task ladder 0.1 kept the network from reading its demonstrations and 0.01 did not; docs/results.md,
-    "Seventh follow-up"), averaged
-    over ``noise_draws`` diffusion timesteps and noises per sample (σ and φ, which do not depend on the noisy actions,
-    run once per sample: a lower-variance estimate of the same loss for the cost of ψ); N is
-    drawn per batch and capped at the fewest other episodes a row's task has
-    (a demonstration never repeats in one context); AdamW (PyTorch's fused kernel on the CPU and CUDA,
-    :class:`~.optimizer.InstantPolicyAdamWConfig`) with
-    ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-4 for ``small``), linear warmup
-    over ``scheduler_warmup_steps`` then cosine decay to zero, gradients clipped to ``optimizer_grad_clip_norm``.
+    ``noise``, by the noise variance) plus ``gripper_loss_weight`` times the gripper's binary cross-entropy (shipped:
+    0.01; on rung 2 of the pseudo-task ladder 0.1 kept the network from reading its demonstrations and 0.01 did not;
+    docs/results.md), averaged over ``noise_draws`` diffusion timesteps and noises per sample (σ and φ, which do not
+    depend on the noisy actions, run once per sample: a lower-variance estimate of the same loss for the cost of ψ);
+    N is drawn per batch and capped at the fewest other episodes a row's task has (a demonstration never repeats in
+    one context); AdamW (PyTorch's fused kernel on the CPU and CUDA, :class:`~.optimizer.InstantPolicyAdamWConfig`)
+    with ``optimizer_lr`` (``None``: the preset's, 1e-5 for ``paper`` as in the paper, 1e-3 for ``small``, the
+    shipped model's), linear warmup over ``scheduler_warmup_steps`` then cosine decay to zero, gradients clipped to
+    ``optimizer_grad_clip_norm``.
 
     Evaluation: the episodes of the env's task in the LeRobotDataset ``demo_repo_id`` at ``demo_root`` (read
     offline) are the context. Execution: ``n_action_steps`` (≤ ``horizon``) actions of each prediction are run
@@ -152,7 +159,7 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     num_demos: int = 2
     min_demos: int = 1
-    max_demos: int = 5
+    max_demos: int = 2
     num_waypoints: int = 10
     horizon: int = 8
     inference_steps: int = 4
@@ -168,14 +175,14 @@ class InstantPolicyConfig(PreTrainedConfig):
     context_layers: int | None = None
     action_layers: int | None = None
     mlp_ratio: int = 4
-    num_frequencies: int = 10
+    num_frequencies: int = 4
 
     encoder_preset: str | None = None
     encoder_weights: str | None = None
     pretrained_encoder: bool = True
-    reencode_action_clouds: bool = True
+    reencode_action_clouds: bool = False
     dense_attention: bool = True
-    action_scene_graph: bool = True
+    action_scene_graph: bool = False
     context_scene_edges: bool = False
     cache_frame_encodings: bool = True
     compile_model: bool = False
@@ -185,13 +192,13 @@ class InstantPolicyConfig(PreTrainedConfig):
     noise_draws: int = 1
 
     gripper_flip_probability: float = 0.1
-    gripper_loss_weight: float = 0.1
+    gripper_loss_weight: float = 0.01
     optimizer_lr: float | None = None
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
     optimizer_eps: float = 1e-8
     optimizer_weight_decay: float = 1e-2
     optimizer_grad_clip_norm: float = 1.0
-    scheduler_warmup_steps: int = 500
+    scheduler_warmup_steps: int = 100
 
     demo_repo_id: str | None = None
     demo_root: str | None = None

@@ -96,7 +96,7 @@ def encoder_fingerprint(encoder: torch.nn.Module, config: dict) -> str:
 
 
 def data_file_digests(dataset_root: Path, data_files: list[list]) -> dict[str, str]:
-    """SHA-256 of each file of ``data_files`` (``[relative path, size]`` pairs of :func:`dataset_fingerprint`)."""
+    """SHA-256 of each file of ``data_files`` (``[relative path, size]`` pairs of :func:`frame_files_fingerprint`)."""
     digests = {}
     for relative, _ in data_files:
         with open(dataset_root / relative, "rb") as handle:
@@ -104,7 +104,7 @@ def data_file_digests(dataset_root: Path, data_files: list[list]) -> dict[str, s
     return digests
 
 
-def dataset_fingerprint(dataset_root: Path) -> dict:
+def frame_files_fingerprint(dataset_root: Path) -> dict:
     """What identifies a dataset's frames: the relative path and size of every file under ``data/``, and
     ``meta/info.json``'s frame count. A regenerated or grown dataset changes it."""
     info = json.loads((dataset_root / "meta" / "info.json").read_text())
@@ -127,7 +127,7 @@ def load_frame_encodings(dataset_root: str | Path, fingerprint: str) -> FrameEnc
         meta = json.loads((path / META_FILE).read_text())
     except (OSError, ValueError):
         return None
-    expected = {"version": FORMAT_VERSION, "encoder": fingerprint, "dataset": dataset_fingerprint(Path(dataset_root))}
+    expected = {"version": FORMAT_VERSION, "encoder": fingerprint, "dataset": frame_files_fingerprint(Path(dataset_root))}
     if any(meta.get(key) != value for key, value in expected.items()):
         logger.info("instant_policy: the frame encodings at %s are stale (dataset or encoder changed)", path)
         return None
@@ -156,7 +156,7 @@ def build_frame_encodings(
 
     root = Path(dataset.root)
     path = cache_path(root, fingerprint)
-    dataset_print = dataset_fingerprint(root)
+    dataset_print = frame_files_fingerprint(root)
     frames = dataset_print["total_frames"]
     index = np.asarray(dataset.hf_dataset.with_format("numpy", columns=["index"])[:]["index"]).reshape(-1)
     if len(index) != frames or not np.array_equal(index, np.arange(frames)):

@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from lerobot_instant_policy.cli import demo
 from lerobot_instant_policy.cli.action_error import main as action_error_main
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.evaluation import action_error as ae
+from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.evaluation.loss_curve import LossCurveError
 
 SHIPPED = demo.SHIPPED_CHECKPOINT

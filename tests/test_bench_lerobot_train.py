@@ -7,8 +7,8 @@ import json
 import pytest
 from synthetic_demos import object_pose, write_demo_dataset
 
+from lerobot_instant_policy.benchmarks.lerobot_train import LogLine, bench_lerobot_train, parse_log_line, summarize
 from lerobot_instant_policy.cli.bench import main
-from lerobot_instant_policy.cli.bench_lerobot_train import LogLine, bench_lerobot_train, parse_log_line, summarize
 
 # A line as lerobot-train 0.6.1 writes it: tqdm's bar, a carriage return, then LeRobot's log record.
 LOGGED = ("Training:  50%|#####     | 249/500 [00:49<00:25,  9.91step/s]\rINFO 2026-11-25 12:08:17 ot_train.py:641 "

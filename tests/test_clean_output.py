@@ -8,7 +8,8 @@ import os
 import subprocess
 
 from lerobot_instant_policy import video_backend
-from lerobot_instant_policy.cli import eval_suite, record_demos
+from lerobot_instant_policy.cli import record_demos
+from lerobot_instant_policy.evaluation import suite
 
 PROBE_WARNING = (
     "Could not load libtorchcodec. Likely causes: ...\n[start of libtorchcodec loading traceback]\nFFmpeg version 8:\n"
@@ -50,7 +51,8 @@ def test_lerobot_eval_prints_no_traceback(tmp_path):
     demos = tmp_path / "demos"
     assert record_demos.main(["--task", "push_button", "--episodes", "2", "--out", str(demos),
                               "--repo-id", "local/push_button"]) == 0
-    command = eval_suite.lerobot_eval_command("push_button", "demo_replay", None, demos, 2, 1, 1, 1000, tmp_path / "run")
+    settings = suite.SuiteSettings(episodes=1, batch_size=1)
+    command = suite.lerobot_eval_command(settings, "push_button", demos, 1000, tmp_path / "run")
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     output = result.stdout + result.stderr

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lerobot_instant_policy.cli.convert import ConversionError, ConvertSettings, convert, main
+from lerobot_instant_policy.cli.convert import main
 from lerobot_instant_policy.cli.dry_run import main as dry_run_main
-from lerobot_instant_policy.cli.record_demos import JOINT_POSITIONS_KEY, depth_key, record
 from lerobot_instant_policy.data.demonstrations import DemonstrationError, load_demonstrations
+from lerobot_instant_policy.perception.convert import ConversionError, ConvertSettings, convert
+from lerobot_instant_policy.sim.recording import JOINT_POSITIONS_KEY, depth_key, record
 from lerobot_instant_policy.sim.robot import JOINT_NAMES, low_poly_panda_urdf
 
 TASK = "push_button"
@@ -134,7 +135,8 @@ def test_depth_stored_in_millimetres_but_labelled_metres_raises(tmp_path):
 
 
 def test_eval_suite_env_args_and_rgbd_demo_roots(tmp_path):
-    from lerobot_instant_policy.cli.eval_suite import demo_root, parse_env_arg
+    from lerobot_instant_policy.cli.eval_suite import parse_env_arg
+    from lerobot_instant_policy.evaluation.suite import demo_root
 
     assert parse_env_arg("depth_noise_std=0.002") == "--env.depth_noise_std=0.002"
     assert demo_root(tmp_path, TASK, 2, 0, "rgbd").name == f"{TASK}-n2-s0-rgbd"
@@ -146,7 +148,8 @@ def test_demo_replay_succeeds_on_processed_raw_depth_through_lerobot_eval(tmp_pa
     """The real-robot path end to end: record raw depth, convert, lerobot-eval with --env.obs_type=rgbd."""
     from lerobot_instant_policy.cli.eval_suite import main as eval_suite_main
 
-    args = ["--policy", "demo_replay", "--obs-type", "rgbd", "--tasks", TASK, "--episodes", "2", "--out", str(tmp_path)]
+    args = ["--policy", "demo_replay", "--obs-type", "rgbd", "--tasks", TASK, "--episodes", "2", "--demo-sets", "1",
+            "--out", str(tmp_path)]
     assert eval_suite_main(args) == 0
     table = json.loads((tmp_path / "success_table_demo_replay.json").read_text())
     assert (tmp_path / "demos" / f"{TASK}-n2-s0-rgbd" / "meta" / "camera_calibration.json").is_file()

@@ -14,6 +14,7 @@ from lerobot_instant_policy.baselines import processor_do_nothing
 from lerobot_instant_policy.baselines.modeling_do_nothing import DoNothingPolicy
 from lerobot_instant_policy.cli import eval_suite
 from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.evaluation import suite
 
 
 def make_do_nothing(**overrides):
@@ -150,8 +151,8 @@ def test_save_and_load_round_trip(tmp_path):
 
 
 def test_eval_suite_command_has_no_demonstration_flags(tmp_path):
-    command = eval_suite.lerobot_eval_command(
-        "push_button", "do_nothing", None, tmp_path / "demos", 2, 10, 2, 1000, tmp_path / "run"
+    command = suite.lerobot_eval_command(
+        suite.SuiteSettings(policy="do_nothing"), "push_button", tmp_path / "demos", 1000, tmp_path / "run"
     )
     assert "--policy.type=do_nothing" in command and "--env.task=push_button" in command
     assert not any(part.startswith(("--policy.demo_", "--policy.num_demos")) for part in command)
@@ -160,16 +161,18 @@ def test_eval_suite_command_has_no_demonstration_flags(tmp_path):
 def test_eval_suite_runs_lerobot_eval_without_recording_demonstrations(tmp_path, capsys):
     """The real ``lerobot-eval --policy.type=do_nothing`` on push_button (1 episode of 80 steps): no success."""
     code = eval_suite.main(
-        ["--policy", "do_nothing", "--tasks", "push_button", "--episodes", "1", "--batch-size", "1", "--out", str(tmp_path)]
+        ["--policy", "do_nothing", "--tasks", "push_button", "--episodes", "1", "--demo-sets", "1", "--batch-size", "1",
+         "--out", str(tmp_path)]
     )
     output = capsys.readouterr()
     assert code == 0, output.err
-    info = json.loads((tmp_path / "runs" / "do_nothing" / "push_button" / "eval_info.json").read_text())
+    info = json.loads((tmp_path / "runs" / "do_nothing" / "push_button" / "set-0" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1 and info["overall"]["pc_success"] == 0.0
     assert [entry["task_group"] for entry in info["per_task"]] == ["push_button"]
     assert info["per_task"][0]["metrics"]["successes"] == [False]
     assert not (tmp_path / "demos").exists()
     table = json.loads((tmp_path / "success_table_do_nothing.json").read_text())
-    assert table["rows"] == [
-        {"task": "push_button", "policy": "do_nothing", "episodes": 1, "successes": 0, "success_rate": 0.0}
-    ]
+    (row,) = table["rows"]
+    assert {key: row[key] for key in ("task", "policy", "episodes", "successes", "success_rate", "ci95_low")} == {
+        "task": "push_button", "policy": "do_nothing", "episodes": 1, "successes": 0, "success_rate": 0.0,
+        "ci95_low": 0.0}

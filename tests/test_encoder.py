@@ -51,11 +51,11 @@ def test_fps_matches_brute_force_reference():
 
 
 def test_fast_cpu_fps_equals_the_torch_loop():
-    from lerobot_instant_policy.model.point_ops import _farthest_point_sampling_torch
+    from lerobot_instant_policy.model.point_ops import farthest_point_sampling_torch
 
     clouds = _clouds(3, 2048)
     start = (clouds - clouds.mean(dim=1, keepdim=True)).square().sum(-1).argmax(dim=1)
-    assert torch.equal(farthest_point_sampling(clouds, 256), _farthest_point_sampling_torch(clouds, 256, start))
+    assert torch.equal(farthest_point_sampling(clouds, 256), farthest_point_sampling_torch(clouds, 256, start))
 
 
 def test_fps_random_start_is_seeded_and_spreads_points():

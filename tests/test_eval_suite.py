@@ -1,4 +1,4 @@
-"""The evaluation path users run: record demonstrations, LeRobot's own lerobot-eval, the success table, make demo."""
+"""The evaluation path users run: demonstration sets, LeRobot's own lerobot-eval, the success table, make demo."""
 
 import json
 from pathlib import Path
@@ -9,21 +9,53 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from lerobot_instant_policy.cli import demo, demo_summary, eval_suite
+from lerobot_instant_policy.cli import demo as demo_cli
+from lerobot_instant_policy.cli import eval_suite
+from lerobot_instant_policy.evaluation import demo, side_by_side, suite
+from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings
 
 
 def test_lerobot_eval_command_names_task_policy_and_demos(tmp_path):
-    command = eval_suite.lerobot_eval_command(
-        "open_drawer", "demo_replay", None, tmp_path / "demos", 2, 10, 2, 1000, tmp_path / "run"
-    )
+    settings = SuiteSettings(out=tmp_path)
+    command = suite.lerobot_eval_command(settings, "open_drawer", tmp_path / "demos", 1000, tmp_path / "run")
     assert Path(command[0]).name == "lerobot-eval"
     assert "--env.task=open_drawer" in command and "--policy.type=demo_replay" in command
     assert f"--policy.demo_root={tmp_path / 'demos'}" in command and "--policy.num_demos=2" in command
-    with_checkpoint = eval_suite.lerobot_eval_command(
-        "open_drawer", "instant_policy", "ckpt/pretrained_model", tmp_path, 2, 10, 2, 1000, tmp_path / "run"
+    assert "--seed=1000" in command and "--eval.n_episodes=10" in command
+    with_checkpoint = suite.lerobot_eval_command(
+        SuiteSettings(policy="instant_policy", policy_path="ckpt/pretrained_model"), "open_drawer", tmp_path, 1000,
+        tmp_path / "run",
     )
     assert "--policy.path=ckpt/pretrained_model" in with_checkpoint
     assert not any(part.startswith("--policy.type") for part in with_checkpoint)
+
+
+def test_demonstration_sets_have_disjoint_seeds_and_the_same_scenes_for_every_policy(tmp_path):
+    """Set s records from seed 100 s and evaluates its own 10 seeds; two policies get the same seeds; the swap reads
+    the next task's demonstrations (the last task the first's) from their own folder."""
+    settings = SuiteSettings(out=tmp_path, episodes=10, demo_sets=3)
+    assert [settings.demo_seed_of(s) for s in range(3)] == [0, 100, 200]
+    assert [settings.eval_seed_of(s) for s in range(3)] == [1000, 1010, 1020]
+    other = SuiteSettings(policy="instant_policy", policy_path="ckpt", out=tmp_path, episodes=10, demo_sets=3)
+    assert [other.eval_seed_of(s) for s in range(3)] == [settings.eval_seed_of(s) for s in range(3)]
+    tasks = ["push_button", "pick_and_lift", "open_drawer"]
+    assert [suite.swap_source(task, tasks) for task in tasks] == ["pick_and_lift", "open_drawer", "push_button"]
+    own = suite.demo_root(tmp_path, "push_button", 2, 100)
+    swapped = suite.demo_root(tmp_path, "push_button", 2, 100, source="pick_and_lift")
+    assert own != swapped and swapped.name.endswith("-from-pick_and_lift")
+    assert SuiteSettings(out=tmp_path, swap=True).runs_dir == tmp_path / "runs" / "demo_replay-swap"
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    ({"demo_sets": 0}, "must be positive"),
+    ({"policy": "instant_policy"}, "needs a policy_path"),
+    ({"policy": "do_nothing", "swap": True}, "needs a policy that reads demonstrations"),
+    ({"demo_seed": 1000}, "overlap evaluation seeds"),
+    ({"eval_seed": 250}, "overlap evaluation seeds"),
+])
+def test_bad_suite_settings_are_refused(tmp_path, overrides, message):
+    with pytest.raises(SuiteError, match=message):
+        SuiteSettings(out=tmp_path, **overrides).validate()
 
 
 def test_policy_args_reach_lerobot_eval_and_runs_get_their_own_folder(tmp_path):
@@ -31,13 +63,11 @@ def test_policy_args_reach_lerobot_eval_and_runs_get_their_own_folder(tmp_path):
         ["--policy-arg", "inference_steps=8", "--policy-arg", "num_waypoints=5", "--run-name", "K8"]
     )
     assert args.policy_args == ["--policy.inference_steps=8", "--policy.num_waypoints=5"]
-    command = eval_suite.lerobot_eval_command(
-        "open_drawer", "demo_replay", None, tmp_path, 2, 10, 2, 1000, tmp_path / "run", policy_args=tuple(args.policy_args)
-    )
+    settings = SuiteSettings(out=tmp_path, run_name="K8", policy_args=tuple(args.policy_args))
+    command = suite.lerobot_eval_command(settings, "open_drawer", tmp_path, 1000, tmp_path / "run")
     assert command[-2:] == ["--policy.inference_steps=8", "--policy.num_waypoints=5"]
-    settings = eval_suite.SuiteSettings(out=tmp_path, run_name="K8")
     assert settings.runs_dir == tmp_path / "runs" / "K8"
-    assert eval_suite.SuiteSettings(out=tmp_path).runs_dir == tmp_path / "runs" / "demo_replay"
+    assert SuiteSettings(out=tmp_path).runs_dir == tmp_path / "runs" / "demo_replay"
 
 
 @pytest.mark.parametrize("bad", ["inference_steps", "=8", "inference_steps=", "bad key=1"])
@@ -65,7 +95,7 @@ def test_best_policy_falls_back_to_demo_replay_without_a_checkpoint(tmp_path):
 
 
 def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
-    code = demo.main(
+    code = demo_cli.main(
         [
             "--task",
             "push_button",
@@ -88,6 +118,7 @@ def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
     assert videos and all(Path(video).stat().st_size > 1000 for video in videos)
     assert "task push_button: demo_replay succeeded in" in output
     assert (tmp_path / "demos" / "push_button-n2-s0" / "meta" / "info.json").is_file()
+    assert sum(info["per_task"][0]["metrics"]["successes"]) >= 1  # demo_replay solved 1 or 2 of these 2 scenes
     # the side-by-side table: one row per episode with its seed and outcome, then the rate
     successes = info["per_task"][0]["metrics"]["successes"]
     for index, success in enumerate(successes):
@@ -96,6 +127,22 @@ def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
     assert f"contact sheet (first and last frame of every episode): {sheet}" in output
     image = plt.imread(sheet)
     assert image.shape[0] > 200 and image.shape[1] > 300
+
+
+def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_path, capsys):
+    """The shipped checkpoint, given 2 demonstrations, lifts the object in both episodes of ``make demo``'s task (it
+    did in 20 of 20 suite episodes); a policy that failed every episode makes the demo exit with 1."""
+    code = demo_cli.main(["--task", "pick_and_lift", "--episodes", "2", "--out", str(tmp_path),
+                          "--policy", "instant_policy"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.out + captured.err
+    info = json.loads(next(tmp_path.rglob("eval_info.json")).read_text())
+    assert info["per_task"][0]["metrics"]["successes"] == [True, True]
+    assert "task pick_and_lift: instant_policy succeeded in 100% of 2 episodes" in captured.out
+    failing = [side_by_side.EpisodeOutcome(1000, False, None)]
+    succeeding = [side_by_side.EpisodeOutcome(1000, True, None)]
+    assert demo.failed_policies({"instant_policy": failing, "demo_replay": succeeding}) == ["instant_policy"]
+    assert demo.failed_policies({"do_nothing": failing, "demo_replay": succeeding}) == []
 
 
 def test_auto_demo_runs_instant_policy_beside_demo_replay(tmp_path):
@@ -110,18 +157,18 @@ def test_summary_table_and_outcomes_from_eval_info(tmp_path):
     info = {"per_task": [{"task_group": "push_button", "metrics": {"successes": [True, False]}}],
             "overall": {"video_paths": [str(tmp_path / "a.mp4"), str(tmp_path / "b.mp4")]}}
     (tmp_path / "eval_info.json").write_text(json.dumps(info))
-    outcomes = demo_summary.episode_outcomes(tmp_path, 1000)
+    outcomes = side_by_side.episode_outcomes(tmp_path, 1000)
     assert [(e.seed, e.success, e.video.name) for e in outcomes] == [(1000, True, "a.mp4"), (1001, False, "b.mp4")]
-    failing = [demo_summary.EpisodeOutcome(e.seed, False, None) for e in outcomes]
-    table = demo_summary.summary_table("push_button", {"instant_policy": failing, "demo_replay": outcomes})
+    failing = [side_by_side.EpisodeOutcome(e.seed, False, None) for e in outcomes]
+    table = side_by_side.summary_table("push_button", {"instant_policy": failing, "demo_replay": outcomes})
     lines = table.splitlines()
     assert lines[1].split() == ["episode", "seed", "instant_policy", "demo_replay"]
     assert lines[2].split() == ["0", "1000", "fail", "success"] and lines[3].split() == ["1", "1001", "fail", "fail"]
     assert lines[4].split() == ["success", "0%", "50%"]
     with pytest.raises(ValueError, match="different numbers of episodes"):
-        demo_summary.summary_table("push_button", {"a": outcomes, "b": outcomes[:1]})
+        side_by_side.summary_table("push_button", {"a": outcomes, "b": outcomes[:1]})
     with pytest.raises(FileNotFoundError, match="did lerobot-eval finish"):
-        demo_summary.episode_outcomes(tmp_path / "missing", 1000)
+        side_by_side.episode_outcomes(tmp_path / "missing", 1000)
 
 
 def _write_video(path: Path, values: list[int]) -> None:
@@ -137,25 +184,50 @@ def _write_video(path: Path, values: list[int]) -> None:
 
 def test_contact_sheet_shows_first_and_last_frames_framed_by_outcome(tmp_path):
     _write_video(tmp_path / "a.mp4", [20, 120, 240])
-    first, last = demo_summary.first_and_last_frames(tmp_path / "a.mp4")
+    first, last = side_by_side.first_and_last_frames(tmp_path / "a.mp4")
     assert first.shape == (32, 32, 3) and first.dtype == np.uint8
     assert abs(int(first.mean()) - 20) < 8 and abs(int(last.mean()) - 240) < 8
-    outcomes = {"demo_replay": [demo_summary.EpisodeOutcome(1000, True, tmp_path / "a.mp4")],
-                "do_nothing": [demo_summary.EpisodeOutcome(1000, False, tmp_path / "a.mp4")]}
-    image = plt.imread(demo_summary.draw_contact_sheet("push_button", outcomes, tmp_path / "sheet.png"))[..., :3]
+    outcomes = {"demo_replay": [side_by_side.EpisodeOutcome(1000, True, tmp_path / "a.mp4")],
+                "do_nothing": [side_by_side.EpisodeOutcome(1000, False, tmp_path / "a.mp4")]}
+    image = plt.imread(side_by_side.draw_contact_sheet("push_button", outcomes, tmp_path / "sheet.png"))[..., :3]
 
     def share(colour: str) -> float:
         return float(np.all(np.abs(image - matplotlib.colors.to_rgb(colour)) < 0.03, axis=-1).mean())
 
-    assert share(demo_summary.SUCCESS_COLOUR) > 0.002 and share(demo_summary.FAILURE_COLOUR) > 0.002
+    assert share(side_by_side.SUCCESS_COLOUR) > 0.002 and share(side_by_side.FAILURE_COLOUR) > 0.002
     outcomes["demo_replay"][0].success = False
-    image = plt.imread(demo_summary.draw_contact_sheet("push_button", outcomes, tmp_path / "sheet.png"))[..., :3]
-    assert share(demo_summary.SUCCESS_COLOUR) == 0.0
+    image = plt.imread(side_by_side.draw_contact_sheet("push_button", outcomes, tmp_path / "sheet.png"))[..., :3]
+    assert share(side_by_side.SUCCESS_COLOUR) == 0.0
 
 
 @pytest.mark.slow
-def test_eval_suite_writes_the_table_and_chart(tmp_path, capsys):
-    assert eval_suite.main(["--tasks", "push_button,pick_and_lift", "--episodes", "2", "--out", str(tmp_path)]) == 0
+def test_eval_suite_writes_the_table_and_chart_over_demonstration_sets_and_the_swap(tmp_path, capsys):
+    """Two tasks × two demonstration sets × one episode: each set its own recorded demonstrations and lerobot-eval
+    folder, pooled per task with a Wilson interval, grouped; the swap reads the other task's recording labelled as
+    its own task."""
+    assert eval_suite.main(["--tasks", "push_button,pick_and_lift", "--episodes", "1", "--demo-sets", "2",
+                            "--out", str(tmp_path)]) == 0
     table = json.loads((tmp_path / "success_table_demo_replay.json").read_text())
-    assert {row["task"] for row in table["rows"]} == {"push_button", "pick_and_lift"}
+    rows = {row["task"]: row for row in table["rows"]}
+    assert set(rows) == {"push_button", "pick_and_lift"} and all(row["episodes"] == 2 for row in rows.values())
+    for row in rows.values():
+        assert 0.0 <= row["ci95_low"] <= row["success_rate"] <= row["ci95_high"] <= 1.0
+    assert [group["group"] for group in table["groups"]] == ["one object, one contact or grasp"]
+    assert table["overall"]["demo_replay"]["episodes"] == 4
+    for task in rows:
+        for demo_set, seed in ((0, 0), (1, 100)):
+            assert (tmp_path / "runs" / "demo_replay" / task / f"set-{demo_set}" / "eval_info.json").is_file()
+            assert (tmp_path / "demos" / f"{task}-n2-s{seed}" / "meta" / "info.json").is_file()
     assert (tmp_path / "success_table_demo_replay.png").stat().st_size > 5000
+    assert "overall (every episode)" in capsys.readouterr().out
+    assert eval_suite.main(["--tasks", "push_button,pick_and_lift", "--episodes", "1", "--demo-sets", "1", "--swap",
+                            "--out", str(tmp_path)]) == 0
+    from lerobot.datasets import LeRobotDataset
+
+    swapped = tmp_path / "demos" / "push_button-n2-s0-from-pick_and_lift"
+    dataset = LeRobotDataset("local/push_button", root=swapped)
+    assert list(dataset.meta.tasks.index) == ["push_button"]
+    own = LeRobotDataset("local/push_button", root=tmp_path / "demos" / "push_button-n2-s0")
+    assert dataset.meta.total_frames != own.meta.total_frames  # another task's motion, not this task's
+    swap_table = json.loads((tmp_path / "success_table_demo_replay-swap.json").read_text())
+    assert {row["policy"] for row in swap_table["rows"]} == {"demo_replay-swap"}

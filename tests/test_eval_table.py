@@ -1,4 +1,5 @@
-"""``lerobot-ip-eval-table``: the per-task success table over lerobot-eval output directories."""
+"""``lerobot-ip-eval-table``: the success table over lerobot-eval output directories, per task, per task group and
+overall, with Wilson 95% intervals."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import json
 import pytest
 
 from lerobot_instant_policy.cli.eval_table import main
+from lerobot_instant_policy.evaluation.success_table import wilson_interval
 
 
 def write_eval_info(run_dir, task_group: str, successes: list[bool]) -> None:
@@ -48,25 +50,53 @@ def test_table_groups_policies_and_tasks(runs, tmp_path, capsys):
     assert rows[("pick_and_lift", "demo_replay")]["episodes"] == 4
     assert rows[("pick_and_lift", "demo_replay")]["success_rate"] == pytest.approx(0.75)
     assert rows[("open_drawer", "demo_replay")]["success_rate"] == pytest.approx(0.25)
+    low, high = wilson_interval(3, 4)
     assert rows[("pick_and_lift", "instant_policy")] == {
         "task": "pick_and_lift", "policy": "instant_policy", "episodes": 4, "successes": 3, "success_rate": 0.75,
+        "ci95_low": low, "ci95_high": high,
     }
     assert printed["mean_success_rate"] == pytest.approx({"demo_replay": 0.5, "instant_policy": 0.75})
+    assert printed["overall"]["demo_replay"]["episodes"] == 8 and printed["overall"]["demo_replay"]["successes"] == 4
+    groups = {(group["group"], group["policy"]): group for group in printed["groups"]}
+    assert groups[("one object, one contact or grasp", "demo_replay")]["tasks"] == ["pick_and_lift"]
+    assert groups[("articulated", "demo_replay")]["successes"] == 1
     assert json.loads(out.with_suffix(".json").read_text()) == printed
     png = out.with_suffix(".png").read_bytes()
     assert png.startswith(b"\x89PNG") and len(png) > 5000
 
 
-def test_text_table(runs, tmp_path, capsys):
+def test_text_table_groups_tasks_and_gives_intervals(runs, tmp_path, capsys):
     assert main([str(runs / "replay" / "lift"), str(runs / "replay" / "open_drawer"), "--policy", "demo_replay",
                  "--out", str(tmp_path / "t")]) == 0
-    text = capsys.readouterr().out
-    header, rule, *lines = text.splitlines()
-    assert header.split() == ["task", "policy", "episodes", "success", "%"]
+    header, rule, *lines = capsys.readouterr().out.splitlines()
+    assert header.split() == ["task", "demo_replay"]
     assert set(rule) <= {"-", " "}
-    assert lines[0].split() == ["open_drawer", "demo_replay", "4", "25.0"]
-    assert lines[1].split() == ["pick_and_lift", "demo_replay", "4", "75.0"]
-    assert lines[2].split() == ["mean", "over", "tasks", "demo_replay", "50.0"]
+    assert lines[:5] == [line for line in lines[:5] if line.strip()]
+    assert lines[0].split() == ["[one", "object,", "one", "contact", "or", "grasp]", "3/4", "75%", "[30-95]"]
+    assert lines[1].split() == ["pick_and_lift", "3/4", "75%", "[30-95]"]
+    assert lines[2].split() == ["[articulated]", "1/4", "25%", "[5-70]"]
+    assert lines[3].split() == ["open_drawer", "1/4", "25%", "[5-70]"]
+    assert lines[4].split() == ["overall", "(every", "episode)", "4/8", "50%", "[22-78]"]
+
+
+def test_wilson_interval_matches_the_closed_form_and_stays_inside_zero_one():
+    """Wilson's score interval: (p + z²/2n ± z √(p(1−p)/n + z²/4n²)) / (1 + z²/n), z = 1.96 (95%)."""
+    z = 1.959964
+    for successes, episodes in ((0, 10), (3, 4), (10, 10), (21, 30)):
+        p, n = successes / episodes, episodes
+        centre, half = p + z * z / (2 * n), z * (p * (1 - p) / n + z * z / (4 * n * n)) ** 0.5
+        expected = ((centre - half) / (1 + z * z / n), (centre + half) / (1 + z * z / n))
+        assert wilson_interval(successes, episodes) == pytest.approx(expected, abs=1e-6)
+    assert wilson_interval(0, 10)[0] == pytest.approx(0.0, abs=1e-12) and wilson_interval(10, 10)[1] == pytest.approx(1.0)
+
+
+def test_demonstration_sets_of_one_task_pool_under_the_task_name(tmp_path, capsys):
+    """lerobot-ip-eval-suite writes runs/<policy>/<task>/set-<s>: sets named only by the env type pool per task."""
+    for demo_set, successes in enumerate(([True, True], [False, True], [False, False])):
+        write_eval_info(tmp_path / "runs" / "push_button" / f"set-{demo_set}", "bullet_tabletop", successes)
+    assert main([f"demo_replay={tmp_path / 'runs'}", "--json", "--out", str(tmp_path / "t")]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["rows"]
+    assert (row["task"], row["episodes"], row["successes"]) == ("push_button", 6, 3)
 
 
 def test_policy_from_lerobot_eval_default_directory_name(tmp_path, capsys):

@@ -276,7 +276,7 @@ def test_shared_object_layout_places_every_demonstration_of_a_task_alike(tmp_pat
     from lerobot_instant_policy.cli.generate import build_parser, config_from_args
 
     config = config_from_args(build_parser().parse_args(["--share-object-layout", "--num-tasks", "1"]))
-    assert config.demo.share_object_layout and config.plan()["demo"]["share_object_layout"]
+    assert config.demo.shared_layout_fraction == 1.0 and config.plan()["demo"]["shared_layout_fraction"] == 1.0
     out = tmp_path / "shared"
     assert _generate(out, "--family", "reach", "--share-object-layout", "--num-tasks", "2",
                      "--demos-per-task", "3", "--seed", "6") == 0
@@ -295,6 +295,36 @@ def test_shared_object_layout_places_every_demonstration_of_a_task_alike(tmp_pat
     dataset = LeRobotDataset(REPO_ID, root=out)
     clouds = [read_episode(dataset, index)["points"][0].astype(np.float64) for index in range(2)]
     assert np.median(cKDTree(clouds[0]).query(clouds[1])[0]) < 0.01
+
+
+def test_shared_layout_fraction_mixes_one_layout_and_moved_object_tasks_without_changing_the_tasks(tmp_path, capsys):
+    """``--shared-layout-fraction 0.5``: some tasks keep one layout, the others move their objects between
+    demonstrations, as ``meta/pseudo_tasks.jsonl`` records; the tasks themselves and the first demonstration of each
+    are those of the same seed without sharing (the choice has its own random stream). A fraction outside [0, 1] or
+    given with --share-object-layout is refused before anything is written."""
+    runs = {}
+    for name, fraction in (("mixed", "0.5"), ("moved", "0")):
+        out = tmp_path / name
+        assert _generate(out, "--family", "reach", "--shared-layout-fraction", fraction, "--num-tasks", "6",
+                         "--demos-per-task", "2", "--seed", "8") == 0
+        tasks = [json.loads(line) for line in (out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()]
+        scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
+        runs[name] = tasks, scenes
+    tasks, scenes = runs["mixed"]
+    flags = [task["shared_layout"] for task in tasks]
+    assert 0 < sum(flags) < len(flags)
+    for index, task in enumerate(tasks):
+        first, second = scenes[2 * index: 2 * index + 2]
+        assert (first["T_world_objects"] == second["T_world_objects"]) == task["shared_layout"]
+    moved_tasks, moved_scenes = runs["moved"]
+    assert not any(task["shared_layout"] for task in moved_tasks)
+    assert [task["waypoints"] for task in moved_tasks] == [task["waypoints"] for task in tasks]
+    assert [scene["T_world_objects"] for scene in moved_scenes[::2]] == [scene["T_world_objects"] for scene in scenes[::2]]
+    for bad in (["--shared-layout-fraction", "1.5"], ["--shared-layout-fraction", "0.5", "--share-object-layout"]):
+        capsys.readouterr()
+        assert _generate(tmp_path / "bad", "--family", "reach", "--num-tasks", "1", *bad) == 2
+        assert "shared-layout-fraction" in capsys.readouterr().err.replace("shared_layout_fraction", "shared-layout-fraction")
+        assert not (tmp_path / "bad").exists()
 
 
 def test_layout_angles_out_of_range_fail_clearly_and_write_nothing(tmp_path, capsys):

@@ -196,9 +196,18 @@ def test_actions_beyond_the_bounds_are_clamped():
 
 
 # ---------------------------------------------------------------- invariance, context reuse, context size
-@pytest.mark.parametrize("reencode", [True, False])
-def test_moving_the_whole_world_leaves_the_relative_actions_unchanged(reencode):
-    network = _network(reencode_action_clouds=reencode).double()
+# The graphs a config builds: the paper's (actions re-encode the live cloud in their frames), the paper's with the
+# encoded scene moved rigidly into the action frames, and the shipped default (actions see the scene through φ only).
+GRAPHS = {
+    "paper": dict(action_scene_graph=True, reencode_action_clouds=True, num_frequencies=10),
+    "paper_rigid_scene": dict(action_scene_graph=True, reencode_action_clouds=False),
+    "shipped": {},
+}
+
+
+@pytest.mark.parametrize("graph", list(GRAPHS))
+def test_moving_the_whole_world_leaves_the_relative_actions_unchanged(graph):
+    network = _network(**GRAPHS[graph]).double()
     batch = _batch(dtype=torch.float64, seed=3)
     moved = dict(batch)
     world = _poses((), torch.Generator().manual_seed(7), torch.float64, translation=1.0, angle=3.0)
@@ -226,9 +235,9 @@ def _count_calls(module: torch.nn.Module) -> list:
     return calls
 
 
-@pytest.mark.parametrize("reencode", [True, False])
-def test_context_is_computed_once_and_reused_by_every_denoising_step(reencode):
-    network = _network(reencode_action_clouds=reencode)
+@pytest.mark.parametrize("graph", list(GRAPHS))
+def test_context_is_computed_once_and_reused_by_every_denoising_step(graph):
+    network = _network(**GRAPHS[graph])
     context = _context(network, _batch())
     context_calls = _count_calls(network.context_network)
     local_calls = _count_calls(network.local_network)
@@ -237,8 +246,9 @@ def test_context_is_computed_once_and_reused_by_every_denoising_step(reencode):
     assert actions.shape == (2, 8, 4, 4) and gripper.shape == (2, 8)
     assert set(gripper.unique().tolist()) <= {0.0, 1.0}
     assert len(context_calls) == 0  # φ is not re-run
-    assert len(local_calls) == 4  # σ only on the action local graphs, once per step
-    assert len(encoder_calls) == (4 if reencode else 0)
+    # σ only on the action local graphs, once per step (never in the shipped graph, where actions have none)
+    assert len(local_calls) == (4 if network.config.action_scene_graph else 0)
+    assert len(encoder_calls) == (4 if graph == "paper" else 0)
     rotations = actions[..., :3, :3]
     torch.testing.assert_close(rotations @ rotations.transpose(-1, -2), torch.eye(3).expand_as(rotations))
 

@@ -217,11 +217,13 @@ def test_a_policy_that_predicted_can_still_train(tiny_dataset, dense_attention):
     assert all(torch.isfinite(p.grad).all() for p in policy.get_optim_params() if p.grad is not None)
 
 
-def test_compiled_training_step_gives_the_eager_loss_and_gradients(tiny_dataset):
+@pytest.mark.parametrize("action_scene_graph", [True, False])
+def test_compiled_training_step_gives_the_eager_loss_and_gradients(tiny_dataset, action_scene_graph):
     """``--policy.compile_model``: σ, φ and ψ through ``torch.compile`` in the training step give the eager step's
-    loss and gradients (the same weights and random draws); sampling runs the eager layers."""
-    sizes = dict(device="cpu", reencode_action_clouds=False, max_demos=2, hidden_dim=32, num_heads=2, local_layers=1,
-                 context_layers=1, action_layers=1)
+    loss and gradients (the same weights and random draws), in the paper's graph and the shipped one; sampling runs
+    the eager layers."""
+    sizes = dict(device="cpu", hidden_dim=32, num_heads=2, local_layers=1, context_layers=1, action_layers=1,
+                 action_scene_graph=action_scene_graph)
     eager = InstantPolicyPolicy(InstantPolicyConfig(**sizes), dataset_meta=tiny_dataset.meta).train()
     compiled = InstantPolicyPolicy(InstantPolicyConfig(**sizes, compile_model=True), dataset_meta=tiny_dataset.meta)
     compiled.load_state_dict(eager.state_dict())
@@ -238,8 +240,8 @@ def test_compiled_training_step_gives_the_eager_loss_and_gradients(tiny_dataset)
         loss, parts = policy.forward(batch)
         loss.backward()
         results.append((loss.detach(), parts, [p.grad for p in policy.get_optim_params()]))
-    # σ on the demonstrations and the current frame, φ, ψ, and σ on the action nodes (the paper's graph)
-    assert calls == [networks[0], networks[1], networks[0], networks[2]]
+    # σ on the demonstrations and the current frame, φ, then σ on the action nodes (the paper's graph only) and ψ
+    assert calls == [networks[0], networks[1], *([networks[0]] if action_scene_graph else []), networks[2]]
     (eager_loss, eager_parts, eager_grads), (compiled_loss, compiled_parts, compiled_grads) = results
     torch.testing.assert_close(compiled_loss, eager_loss, atol=1e-5, rtol=1e-5)
     assert compiled_parts["num_demos"] == eager_parts["num_demos"]
@@ -248,7 +250,7 @@ def test_compiled_training_step_gives_the_eager_loss_and_gradients(tiny_dataset)
     compiled.eval()
     compiled.set_demonstrations(lift_demos(2))
     compiled.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(0))
-    assert len(calls) == 4  # sampling did not call the compiled layers
+    assert len(calls) == (4 if action_scene_graph else 3)  # sampling did not call the compiled layers
 
 
 def test_compiled_sampling_gives_the_eager_actions():

@@ -12,8 +12,8 @@ import pytest
 import torch
 from synthetic_demos import make_demonstration, object_cloud, object_pose
 
-from lerobot_instant_policy.cli import demo
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 REFERENCE = Path(__file__).parent / "data" / "shipped_actions.npz"

@@ -10,9 +10,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from lerobot_instant_policy.cli import demo
+from lerobot_instant_policy.cli import demo as demo_cli
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.evaluation.loss_curve import (
     Checkpoint,
     evaluate_loss,
@@ -81,7 +82,7 @@ def test_make_demo_runs_the_shipped_policy_through_lerobot_eval(tmp_path, capsys
     """``make demo``'s path on a fresh clone: the shipped checkpoint via ``--policy.path`` in ``lerobot-eval``."""
     policy, path, _ = demo.best_policy(SHIPPED)
     assert (policy, path) == ("instant_policy", str(SHIPPED))
-    code = demo.main(["--task", demo.DEFAULT_TASK, "--episodes", "1", "--batch-size", "1", "--out", str(tmp_path)])
+    code = demo_cli.main(["--task", demo.DEFAULT_TASK, "--episodes", "1", "--batch-size", "1", "--out", str(tmp_path)])
     output = capsys.readouterr().out
     assert code == 0, output
     assert f"task {demo.DEFAULT_TASK}: instant_policy succeeded in" in output
@@ -90,7 +91,7 @@ def test_make_demo_runs_the_shipped_policy_through_lerobot_eval(tmp_path, capsys
 
 
 def test_bench_times_the_shipped_checkpoint_with_its_own_settings():
-    from lerobot_instant_policy.cli.bench_policy import bench_inference
+    from lerobot_instant_policy.benchmarks.policy import bench_inference
 
     result = bench_inference(policy_path=str(SHIPPED), repeats=1)
     config = InstantPolicyConfig.from_pretrained(SHIPPED)

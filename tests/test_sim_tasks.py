@@ -31,7 +31,7 @@ def test_scripted_demo_succeeds_and_doing_nothing_fails(task):
 
 @pytest.mark.slow
 def test_scripted_success_table_over_twenty_seeds():
-    from lerobot_instant_policy.cli.record_demos import check
+    from lerobot_instant_policy.sim.recording import check
 
     for row in check(TASKS, episodes=20, seed=0):
         assert row["scripted_success"] >= 0.95, row

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_instant_policy.sim import Part, Task, Waypoint, get_task, register_task, task_names, top_down_pose
+from lerobot_instant_policy.sim import Part, ScriptedWaypoint, Task, get_task, register_task, task_names, top_down_pose
 from lerobot_instant_policy.sim.env import BulletTabletopEnv
 from lerobot_instant_policy.sim.rollout import run_episode
 
@@ -28,9 +28,9 @@ class PushCylinderForward(Task):
     def demonstration(self, scene):
         x, y = scene.pose(self.puck)[:2, 3]
         return [
-            Waypoint(top_down_pose((x - 0.06, y, 0.12)), gripper_open=False),
-            Waypoint(top_down_pose((x - 0.06, y, 0.012)), gripper_open=False),
-            Waypoint(top_down_pose((x + 0.08, y, 0.012)), gripper_open=False),
+            ScriptedWaypoint(top_down_pose((x - 0.06, y, 0.12)), gripper_open=False),
+            ScriptedWaypoint(top_down_pose((x - 0.06, y, 0.012)), gripper_open=False),
+            ScriptedWaypoint(top_down_pose((x + 0.08, y, 0.012)), gripper_open=False),
         ]
 
 
@@ -55,9 +55,9 @@ def test_user_task_runs_through_the_env():
 def test_user_task_through_the_lerobot_env_config_and_the_recorder(tmp_path):
     from lerobot.datasets import LeRobotDataset
 
-    from lerobot_instant_policy.cli.record_demos import record
     from lerobot_instant_policy.data.lerobot_format import read_episode
     from lerobot_instant_policy.sim.configuration_bullet_tabletop import BulletTabletopEnvConfig
+    from lerobot_instant_policy.sim.recording import record
 
     vector_env = BulletTabletopEnvConfig(task="test_push_puck_forward").create_envs(1)["test_push_puck_forward"][0]
     try:

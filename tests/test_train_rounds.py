@@ -76,8 +76,10 @@ def test_dry_run_prints_the_command_of_every_stage_and_runs_nothing(tmp_path, ca
     assert "--policy.type=instant_policy" in train_0 and "--steps=4" in train_0 and "--policy.device=cpu" in train_0
     assert f"--dataset.root={out / 'train'}" in train_0 and f"--output_dir={out / 'run'}" in train_0
     assert "--save_freq=2" in train_0
-    # the --policy.* passthrough follows the recipe's defaults, so it wins; resumed rounds keep the saved config
-    assert train_0.index("--policy.use_amp=false") > train_0.index("--policy.use_amp=true")
+    # a fresh start is the config's defaults (the shipped model) with the --policy.* passthrough; resumed rounds keep
+    # the saved config
+    assert [arg for arg in train_0 if arg.startswith("--policy.") and arg != "--policy.device=cpu"] == [
+        "--policy.type=instant_policy", "--policy.use_amp=false"]
     last = out / "run" / "checkpoints" / "last" / "pretrained_model"
     assert train_1[1:] == [f"--config_path={last / 'train_config.json'}", "--resume=true", "--steps=8"]
     assert action_error[action_error.index("--policy-path") + 1] == str(last)
@@ -98,7 +100,21 @@ def test_dry_run_from_the_shipped_checkpoint_under_accelerate(tmp_path, capsys):
     assert not any(arg.startswith("--policy.type") or arg.startswith("--policy.preset") for arg in trains[0])
 
 
+def test_the_one_layout_fraction_anneals_over_the_rounds_and_the_last_entry_repeats(tmp_path, capsys):
+    """``--shared-layout-fractions 0.5 0``: round 0 generates half one-layout tasks, every later round moved objects
+    only; the validation set keeps the generation config's setting (no flag)."""
+    assert main(["--out", str(tmp_path / "run"), *TINY, "--rounds", "3", "--shared-layout-fractions", "0.5", "0",
+                 "--dry-run"]) == 0
+    generations = [argv for _, argv in _commands(capsys.readouterr().out) if _name(argv) == "lerobot-ip-generate"]
+    fractions = {argv[argv.index("--out") + 1]: argv[argv.index("--shared-layout-fraction") + 1]
+                 if "--shared-layout-fraction" in argv else None for argv in generations}
+    run = tmp_path / "run"
+    assert fractions == {str(run / "rounds" / "round-000"): "0.5", str(run / "val"): None,
+                         str(run / "rounds" / "round-001"): "0.0", str(run / "rounds" / "round-002"): "0.0"}
+
+
 @pytest.mark.parametrize(("args", "message"), [
+    (["--shared-layout-fractions", "0.5", "1.5"], "shared_layout_fractions must be a non-empty list of numbers in"),
     (["--steps-per-round", "0"], "steps_per_round must be a positive integer"),
     (["--rounds", "-1"], "rounds must be a positive integer"),
     (["--val-demos-per-task", "2"], "val_demos_per_task must be at least 3"),

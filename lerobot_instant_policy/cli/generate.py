@@ -32,7 +32,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--cloud", choices=list(CLOUD_SOURCES),
                         help="cameras: rendered segmented depth (default); surface: complete object surface samples")
     parser.add_argument("--share-object-layout", action="store_true",
-                        help="every demonstration of a task places the objects as its first one (only the start differs)")
+                        help="every demonstration of a task places the objects as its first one (only the start "
+                             "differs): --shared-layout-fraction 1")
+    parser.add_argument("--shared-layout-fraction", type=float, metavar="P",
+                        help="the fraction of tasks whose demonstrations share one object layout (default 0: objects "
+                             "move between demonstrations, the paper's setting)")
     parser.add_argument("--object-max-yaw-deg", type=float,
                         help="objects turn about the vertical by at most this many degrees (default: 180)")
     parser.add_argument("--start-max-roll-deg", type=float,
@@ -67,7 +71,7 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
     if args.cloud is not None:
         config = dataclasses.replace(config, render=dataclasses.replace(config.render, cloud=args.cloud))
     demo_overrides = {
-        "share_object_layout": True if args.share_object_layout else None,
+        "shared_layout_fraction": 1.0 if args.share_object_layout else args.shared_layout_fraction,
         "object_max_yaw_deg": args.object_max_yaw_deg,
         "start_max_roll_deg": args.start_max_roll_deg,
     }
@@ -79,6 +83,10 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.share_object_layout and args.shared_layout_fraction is not None:
+        print("lerobot-ip-generate: error: --share-object-layout is --shared-layout-fraction 1; pass one of them",
+              file=sys.stderr)
+        return 2
     try:
         config = config_from_args(args)
         out = generate_dataset(

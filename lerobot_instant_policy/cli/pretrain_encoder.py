@@ -12,7 +12,10 @@ import json
 import sys
 from pathlib import Path
 
-from ..model.geometry_encoder import ENCODER_PRESETS
+from ..model.geometry_encoder import ENCODER_PRESETS, encoder_preset
+from ..model.occupancy import load_occupancy_network
+from ..pretraining.encoder_pretraining import PretrainConfig, evaluate_weights, pretrain
+from ..pretraining.occupancy_picture import draw_occupancy
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,9 +47,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from ..model.geometry_encoder import encoder_preset
-    from ..pretraining.encoder_pretraining import PretrainConfig
-
     expected = encoder_preset(args.preset) if args.preset else None
     config = PretrainConfig(
         preset=args.preset or "small",
@@ -62,26 +62,16 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         if args.out is not None:
-            from ..pretraining.encoder_pretraining import pretrain
-
             result = pretrain(config, args.out, resume=not args.no_resume, progress=not args.no_progress)
-            print(json.dumps({"out": str(args.out), **result["held_out"]}, indent=2))
+            summary = {"out": str(args.out), **result["held_out"]}
         elif args.eval is not None:
-            from ..model.occupancy import load_occupancy_network
-            from ..pretraining.encoder_pretraining import evaluate, load_sets
-
-            network = load_occupancy_network(args.eval, expected)
-            _, eval_set = load_sets(config, train=False)
-            print(json.dumps({"weights": str(args.eval), "split": "held_out", **evaluate(network, eval_set)}, indent=2))
+            summary = {"weights": str(args.eval), "split": "held_out", **evaluate_weights(args.eval, config, expected)}
         else:
-            from ..model.occupancy import load_occupancy_network
-            from ..pretraining.occupancy_picture import draw_occupancy
-
             summary = draw_occupancy(load_occupancy_network(args.show, expected), args.object, args.png)
-            print(json.dumps(summary, indent=2))
     except (ValueError, FileNotFoundError, KeyError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    print(json.dumps(summary, indent=2))
     return 0
 
 

@@ -281,5 +281,3 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     result["wall_s"] = round(time.perf_counter() - start, 1)
     return result
 
-
-# ---------------------------------------------------------------------------------------------------- CLI

@@ -17,7 +17,9 @@ held-out split) it is the validation loss. Two references tell whether the netwo
 - the **prior-only** level (:func:`prior_only_loss`): the translation and rotation losses of the best denoiser that
   knows only the statistics of the actions (a Gaussian prior per normalised action coordinate and horizon step, its
   mean and variance from the evaluated frames), not the observation nor the demonstrations. :class:`LossCurveCache` keeps per-checkpoint results in a JSON file, valid
-only for the same sample settings and the same datasets, and :func:`draw_loss_curve` plots them.
+only for the same sample settings and the same datasets, and :func:`draw_loss_curve` plots them. :func:`loss_curve`
+does it all for a run (``lerobot-ip-loss-curve``): it evaluates the checkpoints not yet in the cache and draws the
+picture.
 """
 
 from __future__ import annotations
@@ -46,6 +48,9 @@ POLICY_TYPE = "instant_policy"
 LOSS_PARTS = ("loss", "translation", "rotation", "gripper")
 PREPROCESSOR_FILE = "policy_preprocessor.json"
 CACHE_FORMAT = 2
+#: Legend label of each curve of :func:`loss_curve`: the training set, the held-out set, and the held-out set with
+#: swapped contexts.
+CURVE_LABELS = {"train": "training", "val": "validation (held-out)", "val_swap": "held-out, swapped context"}
 
 
 class LossCurveError(ValueError):
@@ -83,7 +88,7 @@ class EvaluationSet:
     def __init__(self, name: str, repo_id: str, meta, config, indices: np.ndarray):
         self.name, self.repo_id, self.root, self.meta, self.config = name, repo_id, Path(meta.root), meta, config
         self.indices = indices
-        self.fingerprint = dataset_fingerprint(self.root)
+        self.fingerprint = pseudo_demo_digest(self.root)
 
     @cached_property
     def dataset(self):
@@ -190,7 +195,7 @@ def check_pseudo_demo_root(root: str | Path) -> Path:
     return root
 
 
-def dataset_fingerprint(root: Path) -> str:
+def pseudo_demo_digest(root: Path) -> str:
     """SHA-256 of the dataset's ``meta/info.json``, ``pseudo_tasks.jsonl`` and ``pseudo_demos.jsonl``: the same
     content wherever the dataset lies, different for a regenerated or resized dataset."""
     digest = hashlib.sha256()
@@ -391,3 +396,96 @@ def draw_loss_curve(entries: list[dict], datasets: dict[str, dict], labels: dict
     figure.savefig(out, dpi=110)
     plt.close(figure)
     return out
+
+
+# ---------------------------------------------------------------------------------------------------- a run's curve
+def loss_curve(run_dir: str | Path, train_root: str | Path, val_root: str | Path, out: str | Path,
+               json_path: str | Path | None = None, train_repo_id: str | None = None, val_repo_id: str | None = None,
+               samples: int = 256, batch_size: int = 16, seed: int = 0, device: str = "cpu") -> dict:
+    """The curve of the ``lerobot-train`` run at ``run_dir``: every checkpoint not already in the cache at
+    ``json_path`` (default: ``out`` with suffix ``.json``) is evaluated on ``samples`` frames of the training set,
+    of the held-out set and of the held-out set with swapped contexts (progress on stderr), the cache is saved after
+    each, and the PNG is drawn at ``out``. Returns a JSON-ready summary: the files, the datasets, the settings,
+    which checkpoints were evaluated and reused, the prior-only level, the curve and the best validation step."""
+    checkpoints = find_checkpoints(run_dir)
+    config = checkpoint_config(checkpoints[-1])
+    evaluations = {
+        "train": load_evaluation_set("train", train_root, config, samples, seed, train_repo_id),
+        "val": load_evaluation_set("val", val_root, config, samples, seed, val_repo_id),
+    }
+    descriptions = {name: evaluation.describe() for name, evaluation in evaluations.items()}
+    json_path = Path(json_path) if json_path else Path(out).with_suffix(".json")
+    settings = {"samples": samples, "batch_size": batch_size, "seed": seed}
+    cache = LossCurveCache(json_path, settings, descriptions)
+    evaluated, reused = [], []
+    steps = [checkpoint.step for checkpoint in checkpoints]
+    for checkpoint in checkpoints:
+        weights = weights_fingerprint(checkpoint)
+        if cache.get(checkpoint.step, weights) is not None:
+            reused.append(checkpoint.step)
+            continue
+        results, cache.prior = _evaluate_checkpoint(checkpoint, config, evaluations, batch_size, seed, device,
+                                                    cache.prior)
+        cache.put(checkpoint.step, weights, results)
+        cache.save(steps)
+        evaluated.append(checkpoint.step)
+        print(f"step {checkpoint.step}: " + ", ".join(f"{name} loss {result.loss:.4f}"
+                                                     for name, result in results.items()), file=sys.stderr)
+    cache.save(steps)
+    entries = [cache.entries[step] for step in steps]
+    prior = cache.prior
+    lines = {**descriptions, "val_swap": descriptions["val"]}
+    levels = {"prior-only translation, held-out": prior["translation"]} if prior else None
+    picture = draw_loss_curve(entries, lines, CURVE_LABELS, out, _curve_title(Path(run_dir), descriptions), levels)
+    best = min(entries, key=lambda entry: entry["val"]["loss"])
+    return {
+        "run": str(run_dir), "png": str(picture), "json": str(json_path), "datasets": descriptions,
+        "settings": settings, "cache_discarded": cache.discarded, "evaluated": evaluated, "reused": reused,
+        "prior_only_val": prior, "curve": [_curve_point(entry) for entry in entries],
+        "best_val": {"step": best["step"], "val_loss": best["val"]["loss"]},
+    }
+
+
+def _evaluate_checkpoint(checkpoint: Checkpoint, config, evaluations: dict[str, EvaluationSet], batch_size: int,
+                         seed: int, device: str, prior: dict | None) -> tuple[dict[str, LossEstimate], dict]:
+    """The checkpoint's losses on every evaluation set and on ``val`` with swapped contexts, and the prior-only level
+    on ``val`` (``prior`` when already known). ``LossCurveError`` when its data layout differs from ``config``'s."""
+    policy, preprocessor = load_checkpoint(checkpoint, device)
+    for name in ("num_waypoints", "horizon", "num_points"):
+        if getattr(policy.config, name) != getattr(config, name):
+            raise LossCurveError(
+                f"checkpoint {checkpoint.path} has {name}={getattr(policy.config, name)}, the run's last "
+                f"checkpoint {getattr(config, name)}: evaluate runs with one data layout"
+            )
+    results = {name: evaluate_loss(policy, preprocessor, evaluation, batch_size, seed)
+               for name, evaluation in evaluations.items()}
+    results["val_swap"] = evaluate_loss(policy, preprocessor, evaluations["val"], batch_size, seed, swap_context=True)
+    if prior is None:
+        prior = prior_only_loss(policy, preprocessor, evaluations["val"], batch_size, seed)
+    return results, prior
+
+
+def _curve_title(run_dir: Path, datasets: dict[str, dict]) -> str:
+    """The picture's title: the run, the datasets' sizes and the evaluated samples."""
+    sizes = "; ".join(
+        f"{CURVE_LABELS[name]}: {info['tasks']} pseudo-tasks, {info['episodes']} episodes, {info['frames']} frames"
+        for name, info in datasets.items()
+    )
+    samples = ", ".join(f"{info['samples']} {CURVE_LABELS[name].split()[0]}" for name, info in datasets.items())
+    return f"Instant Policy training curve, run {run_dir}\n{sizes}\nloss on fixed frames ({samples})"
+
+
+def _curve_point(entry: dict) -> dict:
+    """One checkpoint's point of the summary's curve: losses, and the context gains where the swap was evaluated."""
+    return {"step": entry["step"], "train_loss": entry["train"]["loss"], "val_loss": entry["val"]["loss"],
+            "val_translation": entry["val"]["translation"],
+            "val_swap_translation": entry.get("val_swap", {}).get("translation"),
+            "context_gain_translation": _context_gain(entry, "translation"),
+            "context_gain_rotation": _context_gain(entry, "rotation")}
+
+
+def _context_gain(entry: dict, part: str) -> float | None:
+    """Held-out loss with a swapped context / with the frame's own context (``None`` for an entry without a swap)."""
+    if "val_swap" not in entry or entry["val"][part] <= 0:
+        return None
+    return round(entry["val_swap"][part] / entry["val"][part], 3)

@@ -41,10 +41,20 @@ def farthest_point_sampling(
         return torch.from_numpy(
             np.stack([fpsample.fps_sampling(cloud, num_samples, start_idx=int(first)) for cloud, first in zip(clouds, start)])
         ).long()
-    return _farthest_point_sampling_torch(points, num_samples, start)
+    return farthest_point_sampling_torch(points, num_samples, start)
 
 
-def _farthest_point_sampling_torch(points: torch.Tensor, num_samples: int, start: torch.Tensor) -> torch.Tensor:
+def farthest_point_sampling_torch(points: torch.Tensor, num_samples: int, start: torch.Tensor) -> torch.Tensor:
+    """The greedy farthest-point loop of :func:`farthest_point_sampling` in plain torch (any dtype and device).
+
+    Args:
+        points: ``(B, P, 3)``.
+        num_samples: ``S ≤ P``.
+        start: ``(B,)`` int64 index of each cloud's first sample.
+
+    Returns:
+        ``(B, S)`` int64 indices into ``P``, the same as ``fpsample``'s for the same starts.
+    """
     batch, num_points, _ = points.shape
     chosen = torch.empty(batch, num_samples, dtype=torch.long, device=points.device)
     min_sq_dist = torch.full((batch, num_points), float("inf"), dtype=points.dtype, device=points.device)

@@ -20,8 +20,8 @@ import roma
 import torch
 from tqdm import tqdm
 
-from ..model.geometry_encoder import encoder_preset
-from ..model.occupancy import OccupancyNetwork, save_occupancy_network
+from ..model.geometry_encoder import GeometryEncoderConfig, encoder_preset
+from ..model.occupancy import OccupancyNetwork, load_occupancy_network, save_occupancy_network
 from .occupancy_data import OccupancyDataConfig, OccupancySet, cached_occupancy_set
 
 EVAL_SEED = 1
@@ -117,6 +117,14 @@ def evaluate(network: OccupancyNetwork, data: OccupancySet, batch_size: int = 16
         all_labels.append(torch.from_numpy(data.labels[begin : begin + batch_size]))
     metrics = classification_metrics(torch.cat(all_logits), torch.cat(all_labels))
     return {**metrics, "num_scenes": len(data), "num_queries": int(data.labels.size)}
+
+
+def evaluate_weights(weights: Path, config: PretrainConfig, expected: GeometryEncoderConfig | None = None) -> dict:
+    """:func:`evaluate` of the occupancy network in the weights file ``weights`` on the held-out set of ``config``;
+    ``expected``: refuse (``ValueError``) weights of another encoder configuration."""
+    network = load_occupancy_network(weights, expected)
+    _, eval_set = load_sets(config, train=False)
+    return evaluate(network, eval_set)
 
 
 def load_sets(config: PretrainConfig, train: bool = True) -> tuple[OccupancySet | None, OccupancySet]:

@@ -66,6 +66,8 @@ class GenerationConfig:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if self.family not in FAMILIES:
             raise ValueError(f"family must be one of {list(FAMILIES)}, got {self.family!r}")
+        if not 0.0 <= self.demo.shared_layout_fraction <= 1.0:
+            raise ValueError(f"demo.shared_layout_fraction must lie in [0, 1], got {self.demo.shared_layout_fraction}")
         for name in ("object_max_yaw_deg", "start_max_roll_deg", "start_max_tilt_deg"):
             if not 0.0 <= getattr(self.demo, name) <= 180.0:
                 raise ValueError(f"demo.{name} must lie in [0, 180] degrees, got {getattr(self.demo, name)}")
@@ -96,6 +98,12 @@ def task_name(seed: int, task_index: int) -> str:
     return f"pseudo-s{seed}-{task_index:06d}"
 
 
+def shares_object_layout(config: GenerationConfig, task_index: int) -> bool:
+    """Whether task ``task_index`` is one-layout (``DemoConfig.shared_layout_fraction``): drawn from the task's own
+    stream ``(seed, task index, 2)``, so the fraction changes neither the tasks nor their scenes' random draws."""
+    return bool(np.random.default_rng([config.seed, task_index, 2]).random() < config.demo.shared_layout_fraction)
+
+
 def generate_task(
     config: GenerationConfig, task_index: int, renderer: PointCloudRenderer, max_task_attempts: int = 10
 ) -> tuple[PseudoTask, list]:
@@ -122,7 +130,7 @@ def generate_task(
         try:
             demos = [make_demo(task, objects, renderer, rng, config.demo)]
             signature = hold_signature(task, demos[0].layout, objects)
-            shared = demos[0].layout.T_world_objects if config.demo.share_object_layout else None
+            shared = demos[0].layout.T_world_objects if shares_object_layout(config, task_index) else None
             for _ in range(config.demos_per_task - 1):
                 demos.append(make_demo(task, objects, renderer, rng, config.demo, signature, shared))
         except GenerationError as error:
@@ -132,11 +140,13 @@ def generate_task(
     raise GenerationError(f"task {task_index}: {max_task_attempts} draws failed; last: {errors[-1]}")
 
 
-def task_record(task: PseudoTask) -> dict:
-    """JSON-ready description of a task (written to ``meta/pseudo_tasks.jsonl``)."""
+def task_record(task: PseudoTask, shared_layout: bool) -> dict:
+    """JSON-ready description of a task (written to ``meta/pseudo_tasks.jsonl``); ``shared_layout``: whether its
+    demonstrations share one object layout."""
     return {
         "task": task.task_id,
         "template": task.template,
+        "shared_layout": shared_layout,
         "object_ids": list(task.object_ids),
         "waypoints": [
             {
@@ -194,7 +204,7 @@ def generate_shard(config: GenerationConfig, shard_index: int, tasks: range, on_
                 demo_records.append(demo_record(task, demo))
                 if on_episode is not None:
                     on_episode()
-            task_records.append(task_record(task))
+            task_records.append(task_record(task, shares_object_layout(config, task_index)))
     dataset.finalize()
     for name, records in ((TASKS_FILE, task_records), (DEMOS_FILE, demo_records)):
         (partial / "meta" / name).write_text("".join(json.dumps(record) + "\n" for record in records))

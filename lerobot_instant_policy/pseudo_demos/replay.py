@@ -36,9 +36,10 @@ class GenerationError(RuntimeError):
 
 @dataclass
 class DemoConfig:
-    """How one pseudo-demonstration is laid out, moved, augmented and observed. With ``share_object_layout`` every
-    demonstration of a task places the objects where its first one does, and only the gripper's start pose (and the
-    augmentations) differ: the easiest context, where a demonstration shows the live scene itself."""
+    """How one pseudo-demonstration is laid out, moved, augmented and observed. ``shared_layout_fraction``: the
+    probability that a task is one-layout, i.e. every demonstration of it places the objects where its first one
+    does and only the gripper's start pose (and the augmentations) differ: the easiest context, where a demonstration
+    shows the live scene itself. Otherwise (the paper's setting) every demonstration draws its own object poses."""
 
     num_points: int = 2048
     object_x_range: tuple[float, float] = (0.38, 0.62)
@@ -54,7 +55,7 @@ class DemoConfig:
     gripper_fault_fraction: float = 0.1
     max_scene_attempts: int = 25
     min_height: float = -0.005
-    share_object_layout: bool = False
+    shared_layout_fraction: float = 0.0
 
 
 @dataclass

@@ -2,7 +2,7 @@
 
 Importing this package registers the LeRobot ``EnvConfig`` (``bullet_tabletop``) and nothing heavier; the
 simulator and the task API load on first use: ``Task``, ``register_task``, ``get_task``, ``task_names``
-(``task_api``), ``Scene``/``Part`` (``scene``), ``Waypoint``/``top_down_pose``/``approach_pose``/``grasp_yaw``
+(``task_api``), ``Scene``/``Part`` (``scene``), ``ScriptedWaypoint``/``top_down_pose``/``approach_pose``/``grasp_yaw``
 (``demonstrator``), ``BulletTabletopEnv``/``BulletTabletopConfig`` (``env``), ``run_episode`` (``rollout``).
 """
 
@@ -19,7 +19,7 @@ _LAZY = {
     "task_names": "task_api",
     "Scene": "scene",
     "Part": "scene",
-    "Waypoint": "demonstrator",
+    "ScriptedWaypoint": "demonstrator",
     "top_down_pose": "demonstrator",
     "approach_pose": "demonstrator",
     "grasp_yaw": "demonstrator",

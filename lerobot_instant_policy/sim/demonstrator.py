@@ -16,7 +16,7 @@ DOWN = np.array([0.0, 0.0, -1.0])
 
 
 @dataclass
-class Waypoint:
+class ScriptedWaypoint:
     """An EE target ``T_world_ee (4, 4)`` and the gripper command to hold there (``True`` open).
 
     ``hold_steps``: extra steps spent at the waypoint; ``None`` gives ``GRIPPER_HOLD_STEPS`` when the gripper
@@ -54,7 +54,7 @@ def grasp_yaw(axis_yaw: float, symmetry: float, reference: float = np.pi / 2) ->
 def interpolate_waypoints(
     T_world_start: np.ndarray,
     gripper_open_start: bool,
-    waypoints: list[Waypoint],
+    waypoints: list[ScriptedWaypoint],
     max_translation: float = MAX_DEMO_TRANSLATION,
     max_rotation: float = MAX_DEMO_ROTATION,
 ) -> np.ndarray:

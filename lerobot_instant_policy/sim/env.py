@@ -176,7 +176,7 @@ class BulletTabletopEnv(gym.Env):
         self._elapsed_steps = 0
         self._last_cloud = np.zeros((self.config.num_points, 3), dtype=np.float32)
         self._reported_camera_poses = self._perturbed_camera_poses()
-        observation, cloud_empty = self._observe()
+        observation, cloud_empty = self.observe()
         return observation, {"is_success": False, "pointcloud_empty": cloud_empty}
 
     def step(self, action):
@@ -195,7 +195,7 @@ class BulletTabletopEnv(gym.Env):
         self._elapsed_steps += 1
         success = bool(self.task_impl.is_success(self.scene))
         truncated = self._elapsed_steps >= self._max_episode_steps and not success
-        observation, cloud_empty = self._observe()
+        observation, cloud_empty = self.observe()
         info = {
             "is_success": success,
             "action_clipped": action_clipped,
@@ -345,7 +345,14 @@ class BulletTabletopEnv(gym.Env):
         depth = camera.far * camera.near / (camera.far - (camera.far - camera.near) * buffer)
         return np.where(buffer >= 1.0 - 1e-7, 0.0, depth)
 
-    def _observe(self) -> tuple[dict[str, np.ndarray], bool]:
+    def observe(self) -> tuple[dict[str, np.ndarray], bool]:
+        """The observation of the current state, rendered now, as ``reset`` and ``step`` return it, and whether the
+        cameras saw no object point (the previous cloud is then repeated; always False in ``rgbd`` mode).
+
+        Point-cloud mode: ``pointcloud (P, 3)`` world frame (resampled with the env's RNG; the previous cloud without
+        rendering while ``observe_pointcloud`` is False) and ``agent_pos (8,)``. ``rgbd`` mode: ``depth (C, H, W)``
+        metres, ``intrinsics``, ``T_world_camera``, ``joint_positions`` and ``agent_pos``.
+        """
         if self.config.obs_type == "rgbd":
             return self._observe_rgbd(), False
         cloud_empty = False

@@ -3,7 +3,7 @@
 A task says which objects a scene has and how they are randomised (``build``), when the episode is solved
 (``is_success``) and how a scripted Cartesian demonstrator solves it (``demonstration``)::
 
-    from lerobot_instant_policy.sim import Part, Task, Waypoint, register_task, top_down_pose
+    from lerobot_instant_policy.sim import Part, Task, ScriptedWaypoint, register_task, top_down_pose
 
     @register_task
     class PushCube(Task):
@@ -19,9 +19,9 @@ A task says which objects a scene has and how they are randomised (``build``), w
         def demonstration(self, scene):
             x, y, _ = scene.pose(self.cube)[:3, 3]
             return [
-                Waypoint(top_down_pose((x - 0.05, y, 0.15)), gripper_open=False),
-                Waypoint(top_down_pose((x - 0.05, y, 0.02)), gripper_open=False),
-                Waypoint(top_down_pose((x + 0.12, y, 0.02)), gripper_open=False),
+                ScriptedWaypoint(top_down_pose((x - 0.05, y, 0.15)), gripper_open=False),
+                ScriptedWaypoint(top_down_pose((x - 0.05, y, 0.02)), gripper_open=False),
+                ScriptedWaypoint(top_down_pose((x + 0.12, y, 0.02)), gripper_open=False),
             ]
 
 ``lerobot-eval --env.type=bullet_tabletop --env.task=push_cube --env.task_module=my_package.my_tasks`` imports
@@ -36,7 +36,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .demonstrator import Waypoint
+from .demonstrator import ScriptedWaypoint
 from .scene import Scene
 
 _REGISTRY: dict[str, type[Task]] = {}
@@ -61,7 +61,7 @@ class Task(abc.ABC):
         """Whether the task is solved in the scene's current state; never true right after ``build``."""
 
     @abc.abstractmethod
-    def demonstration(self, scene: Scene) -> list[Waypoint]:
+    def demonstration(self, scene: Scene) -> list[ScriptedWaypoint]:
         """Cartesian EE waypoints (world frame) that solve the task from the scene's state after reset."""
 
 

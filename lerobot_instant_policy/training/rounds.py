@@ -70,12 +70,6 @@ MODULES = {
     "lerobot-ip-action-error": "lerobot_instant_policy.cli.action_error",
     "lerobot-ip-loss-curve": "lerobot_instant_policy.cli.loss_curve",
 }
-# The best held-out context gain measured on CPU (make ladder), for a fresh small policy.
-LADDER_POLICY_ARGS = [
-    "--policy.preset=small", "--policy.reencode_action_clouds=false", "--policy.max_demos=2",
-    "--policy.optimizer_lr=1e-3", "--policy.scheduler_warmup_steps=100", "--policy.use_amp=true",
-    "--policy.action_scene_graph=false", "--policy.num_frequencies=4",
-]
 
 
 class TrainRoundsError(ValueError):
@@ -90,12 +84,15 @@ class TrainRoundsConfig:
     each, in groups of ``tasks_per_object_group`` that share their objects, generated in shards of
     ``tasks_per_shard`` tasks by ``workers`` processes; round k draws from seed ``seed + k``. ``generation_config``:
     a ``lerobot-ip-generate`` JSON config the rounds and the validation set start from (cloud source, points per
-    cloud, …). Validation: ``val_tasks`` × ``val_demos_per_task`` held-out pseudo-tasks from ``val_seed`` (with
+    cloud, …). ``shared_layout_fractions``: the fraction of one-layout pseudo-tasks (every demonstration of a task in
+    one object layout) in each round, entry k for round k and the last entry for every later round, so that a
+    curriculum can anneal from the live layout to objects that move between demonstrations; None leaves the
+    generation config's fraction. Validation: ``val_tasks`` × ``val_demos_per_task`` held-out pseudo-tasks from ``val_seed`` (with
     ``family`` reach and the defaults, the pseudo-tasks of ``configs/generate/rung1_reach_val.json``).
 
     Training: ``steps_per_round`` optimiser steps of ``batch_size`` per round, ``checkpoints_per_round`` checkpoints
     each (the loss curve's points), ``num_workers`` data-loader processes, on ``device``. ``start``: ``fresh`` (a new
-    policy with ``fresh_policy_args``), ``shipped`` (the package's checkpoint) or a ``pretrained_model`` directory.
+    policy with the config's defaults, the shipped model's), ``shipped`` (the package's checkpoint) or a ``pretrained_model`` directory.
     ``policy_overrides`` (``--policy.*`` arguments) are added to the first ``lerobot-train`` call whatever the
     start; resumed rounds keep the run's saved config. ``launcher``: a command put before ``lerobot-train``, e.g.
     ``["accelerate", "launch", "--multi_gpu", "--num_processes=4"]`` for several GPUs.
@@ -113,6 +110,7 @@ class TrainRoundsConfig:
     tasks_per_shard: int = 10
     seed: int = 31
     generation_config: str | None = None
+    shared_layout_fractions: list[float] | None = None
     val_tasks: int = 24
     val_demos_per_task: int = 4
     val_seed: int = 121
@@ -123,7 +121,6 @@ class TrainRoundsConfig:
     num_workers: int = 2
     device: str = "cuda"
     start: str = "fresh"
-    fresh_policy_args: list[str] = dataclasses.field(default_factory=lambda: list(LADDER_POLICY_ARGS))
     policy_overrides: list[str] = dataclasses.field(default_factory=list)
     launcher: list[str] = dataclasses.field(default_factory=list)
     eval_frames_per_task: int = 4
@@ -164,6 +161,11 @@ class TrainRoundsConfig:
         bad = [arg for arg in self.policy_overrides if not arg.startswith("--policy.")]
         if bad:
             raise TrainRoundsError(f"policy_overrides must be --policy.* arguments, got {bad}")
+        fractions = self.shared_layout_fractions
+        if fractions is not None and (not fractions or not all(
+                isinstance(value, (int, float)) and 0.0 <= value <= 1.0 for value in fractions)):
+            raise TrainRoundsError(f"shared_layout_fractions must be a non-empty list of numbers in [0, 1], "
+                                   f"got {fractions!r}")
         if self.generation_config is not None and not Path(self.generation_config).is_file():
             raise TrainRoundsError(f"generation_config {self.generation_config} does not exist")
 
@@ -177,6 +179,12 @@ class TrainRoundsConfig:
         if self.generation_config is not None:
             plan["generation_config"] = json.loads(Path(self.generation_config).read_text())
         return plan
+
+    def shared_layout_fraction(self, number: int) -> float | None:
+        """The fraction of one-layout tasks in round ``number`` (None: the generation config's)."""
+        if self.shared_layout_fractions is None:
+            return None
+        return float(self.shared_layout_fractions[min(number, len(self.shared_layout_fractions) - 1)])
 
     @property
     def save_freq(self) -> int:
@@ -234,9 +242,11 @@ def program(name: str, launcher: list[str] | None = None) -> list[str]:
 
 # ---------------------------------------------------------------------------------------------------- commands
 def generate_command(config: TrainRoundsConfig, out: Path, num_tasks: int, demos_per_task: int, seed: int,
-                     object_split: str, resume_flag: str | None = None) -> list[str]:
+                     object_split: str, resume_flag: str | None = None,
+                     shared_layout_fraction: float | None = None) -> list[str]:
     """``lerobot-ip-generate`` of ``num_tasks`` × ``demos_per_task`` pseudo-tasks of the run's family into ``out``;
-    ``resume_flag``: ``--resume`` or ``--overwrite`` for a directory an interrupted generation left."""
+    ``resume_flag``: ``--resume`` or ``--overwrite`` for a directory an interrupted generation left;
+    ``shared_layout_fraction``: the fraction of one-layout tasks (None: the generation config's)."""
     command = program("lerobot-ip-generate")
     if config.generation_config is not None:
         command += ["--config", str(Path(config.generation_config).absolute())]
@@ -247,12 +257,14 @@ def generate_command(config: TrainRoundsConfig, out: Path, num_tasks: int, demos
         "--tasks-per-shard", str(config.tasks_per_shard), "--seed", str(seed), "--object-split", object_split,
         "--workers", str(config.workers), "--no-progress",
     ]
+    if shared_layout_fraction is not None:
+        command += ["--shared-layout-fraction", str(shared_layout_fraction)]
     return command + ([resume_flag] if resume_flag else [])
 
 
 def round_command(config: TrainRoundsConfig, layout: Layout, number: int, resume_flag: str | None = None) -> list[str]:
     return generate_command(config, layout.round(number), config.tasks_per_round, config.demos_per_task,
-                            config.seed + number, "train", resume_flag)
+                            config.seed + number, "train", resume_flag, config.shared_layout_fraction(number))
 
 
 def val_command(config: TrainRoundsConfig, layout: Layout, resume_flag: str | None = None) -> list[str]:
@@ -268,7 +280,7 @@ def train_command(config: TrainRoundsConfig, layout: Layout, number: int, resume
         train_config = resume_from / "pretrained_model" / "train_config.json"
         return command + [f"--config_path={train_config}", "--resume=true", steps]
     if config.start == "fresh":
-        command += ["--policy.type=instant_policy", *config.fresh_policy_args]
+        command += ["--policy.type=instant_policy"]
     else:
         checkpoint = SHIPPED_CHECKPOINT if config.start == "shipped" else Path(config.start).absolute()
         command += [f"--policy.path={checkpoint}"]

@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ...geometry.se3 import make_pose
-from ..demonstrator import Waypoint, grasp_yaw, top_down_pose
+from ..demonstrator import ScriptedWaypoint, grasp_yaw, top_down_pose
 from ..scene import Scene
 from ..task_api import Task, register_task
 from .common import planar_yaw, sample_positions, sample_yaw
@@ -55,11 +55,11 @@ class OpenDrawer(_DrawerTask):
         handle, pull, yaw = self._handle_at(scene, self.opening(scene))
         grasp = handle - (0.0, 0.0, GRASP_DEPTH)
         return [
-            Waypoint(top_down_pose(grasp + (0.0, 0.0, 0.1), yaw), True),
-            Waypoint(top_down_pose(grasp, yaw), True),
-            Waypoint(top_down_pose(grasp, yaw), False),
-            Waypoint(top_down_pose(grasp + 0.15 * pull, yaw), False),
-            Waypoint(top_down_pose(grasp + 0.15 * pull, yaw), True),
+            ScriptedWaypoint(top_down_pose(grasp + (0.0, 0.0, 0.1), yaw), True),
+            ScriptedWaypoint(top_down_pose(grasp, yaw), True),
+            ScriptedWaypoint(top_down_pose(grasp, yaw), False),
+            ScriptedWaypoint(top_down_pose(grasp + 0.15 * pull, yaw), False),
+            ScriptedWaypoint(top_down_pose(grasp + 0.15 * pull, yaw), True),
         ]
 
 
@@ -80,10 +80,10 @@ class CloseDrawer(_DrawerTask):
         start = handle + 0.035 * pull - (0.0, 0.0, 0.01)
         end = handle - self.opening(scene) * pull + 0.02 * pull - (0.0, 0.0, 0.01)
         return [
-            Waypoint(top_down_pose(start + (0.0, 0.0, 0.1), yaw), False),
-            Waypoint(top_down_pose(start, yaw), False),
-            Waypoint(top_down_pose(end, yaw), False),
-            Waypoint(top_down_pose(end + (0.0, 0.0, 0.1), yaw), False),
+            ScriptedWaypoint(top_down_pose(start + (0.0, 0.0, 0.1), yaw), False),
+            ScriptedWaypoint(top_down_pose(start, yaw), False),
+            ScriptedWaypoint(top_down_pose(end, yaw), False),
+            ScriptedWaypoint(top_down_pose(end + (0.0, 0.0, 0.1), yaw), False),
         ]
 
 
@@ -129,8 +129,8 @@ class OpenBox(_BoxTask):
         yaw = grasp_yaw(planar_yaw(lid), np.pi)
         grasp = top_down_pose(handle - (0.0, 0.0, GRASP_DEPTH), yaw)
         above = top_down_pose(handle + (0.0, 0.0, 0.1), yaw)
-        arc = [Waypoint(self._rotate_about_hinge(scene, grasp, angle), False) for angle in np.linspace(0.2, 1.1, 5)]
-        return [Waypoint(above, True), Waypoint(grasp, True), Waypoint(grasp, False), *arc]
+        arc = [ScriptedWaypoint(self._rotate_about_hinge(scene, grasp, angle), False) for angle in np.linspace(0.2, 1.1, 5)]
+        return [ScriptedWaypoint(above, True), ScriptedWaypoint(grasp, True), ScriptedWaypoint(grasp, False), *arc]
 
 
 @register_task
@@ -157,6 +157,6 @@ class CloseBox(_BoxTask):
         back_off = start.copy()
         back_off[:3, 3] -= 0.08 * start[:3, 2]
         arc = [
-            Waypoint(self._rotate_about_hinge(scene, closed_contact, a), False) for a in np.linspace(angle, -0.04, 7)
+            ScriptedWaypoint(self._rotate_about_hinge(scene, closed_contact, a), False) for a in np.linspace(angle, -0.04, 7)
         ]
-        return [Waypoint(back_off, False), Waypoint(start, False), *arc]
+        return [ScriptedWaypoint(back_off, False), ScriptedWaypoint(start, False), *arc]

@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..demonstrator import Waypoint, grasp_yaw, top_down_pose
+from ..demonstrator import ScriptedWaypoint, grasp_yaw, top_down_pose
 from ..scene import Part
 from ..task_api import Task, register_task
 from .common import BLOCK_HALF, planar_yaw, sample_positions, sample_yaw
 
 
-def push_waypoints(start: np.ndarray, end: np.ndarray, height: float, yaw: float) -> list[Waypoint]:
+def push_waypoints(start: np.ndarray, end: np.ndarray, height: float, yaw: float) -> list[ScriptedWaypoint]:
     """Close the gripper above ``start (2,)``, lower to ``height``, push in a straight line to ``end (2,)``, rise."""
     return [
-        Waypoint(top_down_pose((*start, height + 0.1), yaw), False),
-        Waypoint(top_down_pose((*start, height), yaw), False),
-        Waypoint(top_down_pose((*end, height), yaw), False),
-        Waypoint(top_down_pose((*end, height + 0.1), yaw), False),
+        ScriptedWaypoint(top_down_pose((*start, height + 0.1), yaw), False),
+        ScriptedWaypoint(top_down_pose((*start, height), yaw), False),
+        ScriptedWaypoint(top_down_pose((*end, height), yaw), False),
+        ScriptedWaypoint(top_down_pose((*end, height + 0.1), yaw), False),
     ]
 
 
@@ -41,9 +41,9 @@ class PushButton(Task):
         pose = scene.pose(self.button)
         centre, yaw = pose[:3, 3], grasp_yaw(planar_yaw(pose), np.pi / 2)
         return [
-            Waypoint(top_down_pose(centre + (0.0, 0.0, 0.12), yaw), False),
-            Waypoint(top_down_pose(centre + (0.0, 0.0, self.cap_top - 0.016), yaw), False),
-            Waypoint(top_down_pose(centre + (0.0, 0.0, 0.12), yaw), False),
+            ScriptedWaypoint(top_down_pose(centre + (0.0, 0.0, 0.12), yaw), False),
+            ScriptedWaypoint(top_down_pose(centre + (0.0, 0.0, self.cap_top - 0.016), yaw), False),
+            ScriptedWaypoint(top_down_pose(centre + (0.0, 0.0, 0.12), yaw), False),
         ]
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..demonstrator import Waypoint, grasp_yaw, top_down_pose
+from ..demonstrator import ScriptedWaypoint, grasp_yaw, top_down_pose
 from ..scene import Part, Scene
 from ..task_api import Task, register_task
 from .common import BLOCK_HALF, planar_yaw, sample_positions, sample_yaw
@@ -15,7 +15,7 @@ GRASP_DEPTH = 0.005  # EE origin (fingertip centre) this far below a block's cen
 
 def grasp_and_move(
     scene: Scene, body: int, place_position: np.ndarray | None, lift: float = CARRY_HEIGHT
-) -> list[Waypoint]:
+) -> list[ScriptedWaypoint]:
     """Grasp a block-like ``body`` from above; carry it to ``place_position (3,)`` (its centre) and release.
 
     Without ``place_position`` the object is lifted to ``lift`` and held.
@@ -25,19 +25,19 @@ def grasp_and_move(
     yaw = grasp_yaw(planar_yaw(pose), np.pi / 2)
     grasp = centre - (0.0, 0.0, GRASP_DEPTH)
     waypoints = [
-        Waypoint(top_down_pose(centre + (0.0, 0.0, 0.1), yaw), True),
-        Waypoint(top_down_pose(grasp, yaw), True),
-        Waypoint(top_down_pose(grasp, yaw), False),
-        Waypoint(top_down_pose((grasp[0], grasp[1], lift), yaw), False),
+        ScriptedWaypoint(top_down_pose(centre + (0.0, 0.0, 0.1), yaw), True),
+        ScriptedWaypoint(top_down_pose(grasp, yaw), True),
+        ScriptedWaypoint(top_down_pose(grasp, yaw), False),
+        ScriptedWaypoint(top_down_pose((grasp[0], grasp[1], lift), yaw), False),
     ]
     if place_position is None:
         return waypoints
     place = np.asarray(place_position) - (0.0, 0.0, GRASP_DEPTH)
     return waypoints + [
-        Waypoint(top_down_pose((place[0], place[1], lift), yaw), False),
-        Waypoint(top_down_pose(place + (0.0, 0.0, 0.01), yaw), False),
-        Waypoint(top_down_pose(place + (0.0, 0.0, 0.01), yaw), True),
-        Waypoint(top_down_pose((place[0], place[1], lift), yaw), True),
+        ScriptedWaypoint(top_down_pose((place[0], place[1], lift), yaw), False),
+        ScriptedWaypoint(top_down_pose(place + (0.0, 0.0, 0.01), yaw), False),
+        ScriptedWaypoint(top_down_pose(place + (0.0, 0.0, 0.01), yaw), True),
+        ScriptedWaypoint(top_down_pose((place[0], place[1], lift), yaw), True),
     ]
 
 
@@ -196,8 +196,8 @@ class LiftLid(Task):
         yaw = grasp_yaw(planar_yaw(pose), np.pi)  # fingers close across the knob's thin (x) side
         grasp = knob - (0.0, 0.0, 0.004)
         return [
-            Waypoint(top_down_pose(grasp + (0.0, 0.0, 0.1), yaw), True),
-            Waypoint(top_down_pose(grasp, yaw), True),
-            Waypoint(top_down_pose(grasp, yaw), False),
-            Waypoint(top_down_pose(grasp + (0.0, 0.0, 0.15), yaw), False),
+            ScriptedWaypoint(top_down_pose(grasp + (0.0, 0.0, 0.1), yaw), True),
+            ScriptedWaypoint(top_down_pose(grasp, yaw), True),
+            ScriptedWaypoint(top_down_pose(grasp, yaw), False),
+            ScriptedWaypoint(top_down_pose(grasp + (0.0, 0.0, 0.15), yaw), False),
         ]

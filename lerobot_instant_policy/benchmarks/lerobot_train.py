@@ -25,7 +25,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..training.rounds import LADDER_POLICY_ARGS, MODULES
+from ..training.rounds import MODULES
 
 #: One of LeRobot's training log lines (``lerobot_train.py``): the step, then the averages of its log window.
 LOG_LINE = re.compile(r"step:(?P<step>[0-9.]+[KMBT]?) .*updt_s:(?P<updt_s>[0-9.]+) data_s:(?P<data_s>[0-9.]+)")
@@ -68,10 +68,10 @@ def summarize(lines: list[LogLine], batch_size: int, skip: int) -> dict:
 
 def lerobot_train_command(root: str, repo_id: str, output_dir: str, steps: int, batch_size: int, num_workers: int,
                           log_every: int, compile_model: bool) -> list[str]:
-    """``lerobot-train`` with the ``make ladder`` model and recipe (the policy flags ``lerobot-ip-train-rounds`` starts
-    a fresh run with), no checkpoints, no W&B."""
+    """``lerobot-train`` of the default model and recipe (the shipped model's, ``InstantPolicyConfig``'s defaults) in
+    bfloat16 autocast as ``make ladder`` trains it, no checkpoints, no W&B."""
     return [
-        sys.executable, "-m", MODULES["lerobot-train"], "--policy.type=instant_policy", *LADDER_POLICY_ARGS,
+        sys.executable, "-m", MODULES["lerobot-train"], "--policy.type=instant_policy", "--policy.use_amp=true",
         f"--policy.compile_model={str(compile_model).lower()}", "--policy.push_to_hub=false",
         f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
         f"--steps={steps}", f"--batch_size={batch_size}", f"--num_workers={num_workers}", f"--log_freq={log_every}",

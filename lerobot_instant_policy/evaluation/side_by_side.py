@@ -13,7 +13,7 @@ from pathlib import Path
 import av
 import numpy as np
 
-from .eval_table import EVAL_INFO, load_eval_info
+from .success_table import EVAL_INFO, load_eval_info
 
 SUCCESS_COLOUR = "#1a9850"
 FAILURE_COLOUR = "#d73027"

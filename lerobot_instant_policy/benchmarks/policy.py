@@ -2,7 +2,8 @@
 
 Inputs are synthetic (random clouds of 2048 points, random EE poses): speed does not depend on what the points
 show. The geometry encoder is randomly initialised when the preset has no shipped weights (``paper``), which
-changes no timing.
+changes no timing. :func:`inference_benchmark` and :func:`train_step_benchmark` run one benchmark with settings, or
+compare one setting on and off (:mod:`.variants`).
 """
 
 from __future__ import annotations
@@ -10,7 +11,6 @@ from __future__ import annotations
 import resource
 import statistics
 import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -19,9 +19,27 @@ from ..configuration_instant_policy import InstantPolicyConfig
 from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from ..data.context_bank import ContextBank, EpisodeWaypoints
 from ..data.demonstrations import Demonstration
+from .variants import run_or_compare
+
+#: The settings :func:`inference_benchmark` compares, each with the names of its True and False variants.
+INFERENCE_COMPARISONS = {"dense_attention": ("dense", "reference"), "compile_inference": ("compiled", "eager")}
+#: The settings :func:`train_step_benchmark` compares, each with the names of its True and False variants.
+TRAIN_STEP_COMPARISONS = {
+    "dense_attention": ("dense", "reference"),
+    "frame_cache": ("cached", "live"),
+    "use_amp": ("amp", "float32"),
+    "fused_adamw": ("fused", "loop"),
+    "compile_model": ("compiled", "eager"),
+}
+#: Episodes in the context bank of :func:`bench_train_step`.
+TRAIN_STEP_EPISODES = 8
+#: The EE state of every context waypoint there: at the origin, identity orientation, gripper open.
+_WAYPOINT_STATE = np.array([0, 0, 0, 0, 0, 0, 1, 1], np.float32)
 
 
 def _config(preset: str, **overrides) -> InstantPolicyConfig:
+    """The ``preset`` config on the GPU when there is one, without the pretrained encoder when its weights are
+    missing (random weights time the same)."""
     config = InstantPolicyConfig(preset=preset, device="cuda" if torch.cuda.is_available() else "cpu", **overrides)
     if config.pretrained_encoder and not config.encoder_weights_path().is_file():
         config = InstantPolicyConfig(preset=preset, device=config.device, pretrained_encoder=False, **overrides)
@@ -38,6 +56,8 @@ def _pose_rows(rng: np.random.Generator, count: int) -> np.ndarray:
 
 
 def _demo(rng: np.random.Generator, frames: int, points: int, task: str) -> Demonstration:
+    """A demonstration of ``frames`` frames: one random cloud ``(points, 3)`` near the table in every frame, random
+    EE states ``(frames, 8)``, actions equal to the states."""
     cloud = rng.uniform(-0.1, 0.1, size=(points, 3)).astype(np.float32) + np.array([0.5, 0.0, 0.05], np.float32)
     state = _pose_rows(rng, frames)
     return Demonstration(np.repeat(cloud[None], frames, axis=0), state, state.copy(), task)
@@ -112,38 +132,13 @@ def bench_train_step(
     encoder's cache is warm before timing). ``use_amp`` runs ``forward`` under ``torch.autocast`` with the device's
     default dtype (bfloat16 on the CPU), as ``lerobot-train --policy.use_amp=true`` does where the config keeps it
     (on a CPU without fast bfloat16 kernels the config turns it off; the bench still measures it)."""
-    from ..frame_encodings import FrameEncodings
     from ..modeling_instant_policy import InstantPolicyPolicy
 
     config = _config(preset, min_demos=num_demos, max_demos=num_demos, **overrides)
     policy = InstantPolicyPolicy(config).to(config.device).train()
-    rng = np.random.default_rng(0)
     L, P, T = config.num_waypoints, config.num_points, config.horizon
-    episodes = 8
-    waypoint_state = np.tile(np.array([0, 0, 0, 0, 0, 0, 1, 1], np.float32), (L, 1))
-    bank = ContextBank([
-        EpisodeWaypoints(index, "bench", np.arange(L), rng.uniform(-0.1, 0.1, (L, P, 3)).astype(np.float32),
-                         np.tile(np.eye(4, dtype=np.float32), (L, 1, 1)), np.ones(L, np.float32),
-                         np.arange(index * L, (index + 1) * L))
-        for index in range(episodes)
-    ])
-    state = _pose_rows(rng, batch_size)
-    actions = np.repeat(state[:, None], T, axis=1)
-    actions[..., :3] += rng.normal(0.0, 0.005, size=(batch_size, T, 3)).astype(np.float32)
-    batch = {
-        POINTCLOUD_KEY: torch.from_numpy(rng.uniform(-0.1, 0.1, (batch_size, P, 3)).astype(np.float32)),
-        STATE_KEY: torch.from_numpy(state),
-        ACTION_KEY: torch.from_numpy(actions),
-        "episode_index": torch.from_numpy(rng.integers(0, episodes, batch_size)),
-        "index": torch.arange(episodes * L, episodes * L + batch_size),
-    }
-    encodings = None
-    if frame_cache:  # frames 0 … E·L − 1: the bank's waypoints; then the batch rows
-        points = torch.cat([torch.from_numpy(bank.points_world.reshape(-1, P, 3)), batch[POINTCLOUD_KEY]])
-        states = torch.cat([torch.from_numpy(np.tile(waypoint_state, (episodes, 1))), batch[STATE_KEY]])
-        T_world_ee, _ = poses_from_vectors_torch(states.to(config.device))
-        positions, features = policy.network.encode_observation(points.to(config.device), T_world_ee)
-        encodings = FrameEncodings(None, positions.cpu().numpy(), features.cpu().numpy())
+    bank, batch = _training_inputs(np.random.default_rng(0), config, batch_size)
+    encodings = _frame_encodings(policy, bank, batch) if frame_cache else None
     policy.set_training_bank(bank, frame_encodings=encodings)
     batch = {key: value.to(config.device) for key, value in batch.items()}
     optimizer_config = config.get_optimizer_preset()
@@ -181,20 +176,65 @@ def bench_train_step(
     }
 
 
-def compare_variants(run: Callable[..., dict], figure: str, option: str, names: tuple[str, str], rounds: int = 3) -> dict:
-    """``run(**{option: True})`` and ``run(**{option: False})`` in alternation, ``rounds`` times each; the medians of
-    ``figure`` under ``names`` (for True, for False) and their ratio, measured in this one run."""
-    results = {True: [], False: []}
-    for _ in range(rounds):
-        for value in (True, False):
-            results[value].append(run(**{option: value}))
-    on, off = (statistics.median(result[figure] for result in results[value]) for value in (True, False))
-    return {
-        **{key: value for key, value in results[True][0].items()
-           if key not in (figure, option) and not key.startswith("runs")},
-        "figure": figure, "rounds": rounds,
-        names[0]: on, names[1]: off,
-        f"{names[0]}_over_{names[1]}": round(on / off, 3),
-        f"runs_{names[0]}": [result[figure] for result in results[True]],
-        f"runs_{names[1]}": [result[figure] for result in results[False]],
+def _training_inputs(rng: np.random.Generator, config: InstantPolicyConfig, batch_size: int) -> tuple[ContextBank, dict]:
+    """A context bank of :data:`TRAIN_STEP_EPISODES` episodes of ``L`` waypoints (random clouds ``(L, P, 3)``, EE at
+    the origin, frames ``0 … E·L − 1``) and a training batch of ``batch_size`` rows after them, as ``lerobot-train``'s
+    loader gives it: clouds ``(B, P, 3)``, states ``(B, 8)``, action chunks ``(B, T, 8)`` (the state, jittered by
+    5 mm), episode and frame indices."""
+    L, P, T, episodes = config.num_waypoints, config.num_points, config.horizon, TRAIN_STEP_EPISODES
+    bank = ContextBank([
+        EpisodeWaypoints(index, "bench", np.arange(L), rng.uniform(-0.1, 0.1, (L, P, 3)).astype(np.float32),
+                         np.tile(np.eye(4, dtype=np.float32), (L, 1, 1)), np.ones(L, np.float32),
+                         np.arange(index * L, (index + 1) * L))
+        for index in range(episodes)
+    ])
+    state = _pose_rows(rng, batch_size)
+    actions = np.repeat(state[:, None], T, axis=1)
+    actions[..., :3] += rng.normal(0.0, 0.005, size=(batch_size, T, 3)).astype(np.float32)
+    batch = {
+        POINTCLOUD_KEY: torch.from_numpy(rng.uniform(-0.1, 0.1, (batch_size, P, 3)).astype(np.float32)),
+        STATE_KEY: torch.from_numpy(state),
+        ACTION_KEY: torch.from_numpy(actions),
+        "episode_index": torch.from_numpy(rng.integers(0, episodes, batch_size)),
+        "index": torch.arange(episodes * L, episodes * L + batch_size),
     }
+    return bank, batch
+
+
+def _frame_encodings(policy, bank: ContextBank, batch: dict):
+    """The ``FrameEncodings`` of every frame of :func:`_training_inputs` (frames ``0 … E·L − 1``: the bank's
+    waypoints; then the batch rows), encoded by ``policy``'s network as ``lerobot-train`` finds them beside its
+    dataset."""
+    from ..frame_encodings import FrameEncodings
+
+    config = policy.config
+    points = torch.cat([torch.from_numpy(bank.points_world.reshape(-1, config.num_points, 3)), batch[POINTCLOUD_KEY]])
+    waypoint_states = np.tile(_WAYPOINT_STATE, (TRAIN_STEP_EPISODES * config.num_waypoints, 1))
+    states = torch.cat([torch.from_numpy(waypoint_states), batch[STATE_KEY]])
+    T_world_ee, _ = poses_from_vectors_torch(states.to(config.device))
+    positions, features = policy.network.encode_observation(points.to(config.device), T_world_ee)
+    return FrameEncodings(None, positions.cpu().numpy(), features.cpu().numpy())
+
+
+def inference_benchmark(preset: str = "small", repeats: int = 5, policy_path: str | None = None,
+                        compare: str | None = None, **settings) -> dict:
+    """:func:`bench_inference` with ``settings`` (config overrides, e.g. ``dense_attention``, ``compile_inference``);
+    with ``compare`` (a key of :data:`INFERENCE_COMPARISONS`) that setting on and off in alternation, and the ratio
+    of their ``ms_per_control_step``."""
+
+    def run(**kwargs) -> dict:
+        return bench_inference(preset, repeats=repeats, policy_path=policy_path, **kwargs)
+
+    return run_or_compare(run, "ms_per_control_step", settings, compare, INFERENCE_COMPARISONS)
+
+
+def train_step_benchmark(preset: str = "small", batch_size: int = 8, repeats: int = 5, compare: str | None = None,
+                         **settings) -> dict:
+    """:func:`bench_train_step` with ``settings`` (its options and config overrides, e.g. ``frame_cache``,
+    ``use_amp``, ``noise_draws``); with ``compare`` (a key of :data:`TRAIN_STEP_COMPARISONS`) that setting on and off
+    in alternation, and the ratio of their ``samples_per_s``."""
+
+    def run(**kwargs) -> dict:
+        return bench_train_step(preset, batch_size=batch_size, repeats=repeats, **kwargs)
+
+    return run_or_compare(run, "samples_per_s", settings, compare, TRAIN_STEP_COMPARISONS)

@@ -1,4 +1,4 @@
-"""``lerobot-ip-bench env``: ``bullet_tabletop`` env steps per second with point-cloud observations."""
+"""Speed of the ``bullet_tabletop`` env: steps per second with point-cloud observations, and one render's time."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def bench_env(task: str = "pick_and_place", steps: int = 60, repeats: int = 3) -
             step_rates.append(_scripted_steps_per_s(env, repeat, steps))
             for _ in range(10):
                 start = time.perf_counter()
-                env._observe()
+                env.observe()
                 render_times.append(time.perf_counter() - start)
         env.observe_pointcloud = False
         physics_rates = [_scripted_steps_per_s(env, repeat, steps) for repeat in range(repeats)]

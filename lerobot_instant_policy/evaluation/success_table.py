@@ -1,0 +1,250 @@
+"""Success tables of ``lerobot-eval`` runs: per task, per task group and overall, each with a Wilson 95% interval.
+
+Each path is a ``lerobot-eval`` output directory (it holds ``eval_info.json``) or a directory searched recursively
+for them. A path may be prefixed ``POLICY=`` to name the policy its runs evaluated; otherwise the policy comes from
+the caller's default, else from lerobot-eval's default directory name ``<time>_<env type>_<policy type>``, else it
+is ``policy``. The task of a result is its ``task_group`` in ``eval_info.json`` (the env's task name), or, when that
+is only the env type, the name of the run directory (of its parent for a demonstration set's ``set-<s>`` folder).
+Runs of the same policy and task are pooled: the episodes of every demonstration set count together.
+
+Interval: the Wilson score interval of a binomial proportion at 95% (``scipy.stats.binomtest(...).proportion_ci``),
+which stays inside [0, 1] and is not degenerate at 0 or n successes, unlike the normal approximation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from scipy.stats import binomtest
+
+EVAL_INFO = "eval_info.json"
+DEFAULT_ENV_TYPE = "bullet_tabletop"
+CONFIDENCE = 0.95
+OTHER_GROUP = "other"
+
+# The suite's tasks by what a policy must read from its demonstrations (issue 30's grouping); tasks registered from
+# outside the package fall in OTHER_GROUP.
+TASK_GROUPS: dict[str, tuple[str, ...]] = {
+    "one object, one contact or grasp": ("push_button", "knock_over", "pick_and_lift", "lift_lid"),
+    "articulated": ("open_drawer", "close_drawer", "open_box", "close_box"),
+    "relative placement (two objects)": ("pick_and_place", "put_in_tray", "stack_blocks", "slide_block"),
+}
+
+
+def task_group(task: str) -> str:
+    """The group of ``TASK_GROUPS`` that ``task`` belongs to, else ``OTHER_GROUP``."""
+    return next((group for group, tasks in TASK_GROUPS.items() if task in tasks), OTHER_GROUP)
+
+
+def wilson_interval(successes: int, episodes: int) -> tuple[float, float]:
+    """The Wilson 95% interval ``(low, high)`` of a success rate of ``successes`` in ``episodes``; NaNs for none."""
+    if episodes == 0:
+        return math.nan, math.nan
+    interval = binomtest(successes, episodes).proportion_ci(confidence_level=CONFIDENCE, method="wilson")
+    return float(interval.low), float(interval.high)
+
+
+@dataclass(frozen=True)
+class SuccessCount:
+    """``successes`` of ``episodes`` episodes of ``policy`` on ``task`` (a task, a group's name or ``overall``)."""
+
+    task: str
+    policy: str
+    episodes: int
+    successes: int
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / self.episodes if self.episodes else math.nan
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        return wilson_interval(self.successes, self.episodes)
+
+    def as_json(self) -> dict:
+        low, high = self.interval
+        return {"task": self.task, "policy": self.policy, "episodes": self.episodes, "successes": self.successes,
+                "success_rate": self.success_rate, "ci95_low": low, "ci95_high": high}
+
+    def cell(self) -> str:
+        """``successes/episodes rate% [low–high]`` for a text table."""
+        low, high = self.interval
+        return f"{self.successes}/{self.episodes} {100 * self.success_rate:.0f}% [{100 * low:.0f}-{100 * high:.0f}]"
+
+
+def find_eval_infos(path: Path) -> list[Path]:
+    """``eval_info.json`` files at or under ``path`` (sorted); an error when there is none."""
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist")
+    if path.is_file():
+        found = [path] if path.name == EVAL_INFO else []
+    else:
+        found = sorted(path.rglob(EVAL_INFO))
+    if not found:
+        raise FileNotFoundError(f"no {EVAL_INFO} at or under {path}: give lerobot-eval output directories")
+    return found
+
+
+def policy_from_run_name(run_name: str, env_type: str) -> str | None:
+    """The policy type in lerobot-eval's default output directory name ``HH-MM-SS_<env type>_<policy type>``."""
+    match = re.search(rf"_{re.escape(env_type)}_(.+)$", run_name)
+    return match.group(1) if match else None
+
+
+def load_eval_info(eval_info: Path) -> dict:
+    """A lerobot-eval ``eval_info.json``, checked: a ``per_task`` list whose entries have a ``task_group`` and a
+    ``metrics.successes`` list (one per episode, in order). ``ValueError`` otherwise."""
+    try:
+        info = json.loads(eval_info.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{eval_info} is not valid JSON: {error}") from error
+    per_task = info.get("per_task") if isinstance(info, dict) else None
+    if not isinstance(per_task, list):
+        raise ValueError(f"{eval_info} has no 'per_task' list: not a lerobot-eval eval_info.json")
+    for entry in per_task:
+        successes = entry.get("metrics", {}).get("successes")
+        if not isinstance(successes, list) or "task_group" not in entry:
+            raise ValueError(f"{eval_info}: a per_task entry lacks 'task_group' or 'metrics.successes'")
+    return info
+
+
+def read_eval_info(eval_info: Path, policy: str | None, env_type: str) -> list[SuccessCount]:
+    """One ``SuccessCount`` per task in a lerobot-eval ``eval_info.json`` (its ``per_task`` list)."""
+    per_task = load_eval_info(eval_info)["per_task"]
+    run_dir = eval_info.parent
+    named_dir = run_dir.parent if re.fullmatch(r"set-\d+", run_dir.name) else run_dir
+    policy = policy or policy_from_run_name(run_dir.name, env_type) or "policy"
+    results = []
+    for entry in per_task:
+        successes = entry["metrics"]["successes"]
+        group = str(entry["task_group"])
+        task = named_dir.name if group == env_type else group
+        results.append(SuccessCount(task, policy, len(successes), int(sum(map(bool, successes)))))
+    return results
+
+
+def collect_results(paths: list[str], default_policy: str | None, env_type: str) -> list[SuccessCount]:
+    """Pooled counts per (task, policy) over every ``[POLICY=]PATH``, sorted by task then policy."""
+    pooled: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0])
+    for argument in paths:
+        label, separator, path_text = argument.partition("=")
+        if not separator:
+            label, path_text = "", argument
+        for eval_info in find_eval_infos(Path(path_text)):
+            for result in read_eval_info(eval_info, label or default_policy, env_type):
+                counts = pooled[(result.task, result.policy)]
+                counts[0] += result.episodes
+                counts[1] += result.successes
+    return [SuccessCount(task, policy, episodes, successes)
+            for (task, policy), (episodes, successes) in sorted(pooled.items())]
+
+
+def pool(results: list[SuccessCount], name_of: Callable[[str], str]) -> list[SuccessCount]:
+    """Counts summed per (``name_of(task)``, policy), in first-seen order."""
+    pooled: dict[tuple[str, str], list[int]] = {}
+    for result in results:
+        counts = pooled.setdefault((name_of(result.task), result.policy), [0, 0])
+        counts[0] += result.episodes
+        counts[1] += result.successes
+    return [SuccessCount(name, policy, episodes, successes) for (name, policy), (episodes, successes) in pooled.items()]
+
+
+def policy_means(results: list[SuccessCount]) -> dict[str, float]:
+    """Mean over tasks of each policy's success rate (each task weighs the same)."""
+    rates: dict[str, list[float]] = defaultdict(list)
+    for result in results:
+        rates[result.policy].append(result.success_rate)
+    return {policy: sum(values) / len(values) for policy, values in rates.items()}
+
+
+def grouped_tasks(results: list[SuccessCount]) -> list[tuple[str, list[str]]]:
+    """``(group, tasks)`` in ``TASK_GROUPS`` order (``OTHER_GROUP`` last), the tasks present in ``results`` only."""
+    present = {result.task for result in results}
+    groups = [(group, [task for task in tasks if task in present]) for group, tasks in TASK_GROUPS.items()]
+    others = sorted(task for task in present if task_group(task) == OTHER_GROUP)
+    return [(group, tasks) for group, tasks in groups + [(OTHER_GROUP, others)] if tasks]
+
+
+def format_table(results: list[SuccessCount]) -> str:
+    """A text table, one column per policy: each task grouped as ``TASK_GROUPS``, each group pooled, then every
+    episode pooled (``overall``); each cell ``successes/episodes rate% [Wilson 95% interval]``."""
+    policies = sorted({result.policy for result in results})
+    by_key = {(result.task, result.policy): result for result in results}
+    group_counts = {(result.task, result.policy): result for result in pool(results, task_group)}
+    overall = {result.policy: result for result in pool(results, lambda task: "overall")}
+    rows = [("task", *policies)]
+    for group, tasks in grouped_tasks(results):
+        rows.append((f"[{group}]", *(group_counts[(group, policy)].cell() if (group, policy) in group_counts
+                                     else "-" for policy in policies)))
+        rows += [(f"  {task}", *(by_key[(task, policy)].cell() if (task, policy) in by_key else "-"
+                                 for policy in policies)) for task in tasks]
+    rows.append(("overall (every episode)", *(overall[policy].cell() for policy in policies)))
+    widths = [max(len(row[column]) for row in rows) for column in range(len(rows[0]))]
+    lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)) for row in rows]
+    lines.insert(1, "  ".join("-" * width for width in widths))
+    return "\n".join(lines)
+
+
+def results_json(results: list[SuccessCount]) -> dict:
+    """The table as JSON: per (task, policy), per (group, policy) and per policy overall, each with its counts,
+    ``success_rate`` in [0, 1] and Wilson interval; ``mean_success_rate``: each policy's mean over tasks."""
+    return {
+        "rows": [result.as_json() for result in results],
+        "groups": [{**result.as_json(), "group": result.task, "tasks": dict(grouped_tasks(results))[result.task]}
+                   for result in pool(results, task_group)],
+        "overall": {result.policy: result.as_json() for result in pool(results, lambda task: "overall")},
+        "mean_success_rate": policy_means(results),
+        "confidence": CONFIDENCE,
+        "interval": "wilson",
+    }
+
+
+def save_bar_chart(results: list[SuccessCount], path: Path, title: str = "success per task") -> None:
+    """Grouped bars with Wilson 95% error bars: one group of bars per task (in ``TASK_GROUPS`` order), one bar per
+    policy, success rate in %, episodes above each bar."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = [task for _, group_tasks in grouped_tasks(results) for task in group_tasks]
+    policies = sorted({result.policy for result in results})
+    by_key = {(result.task, result.policy): result for result in results}
+    width = 0.8 / len(policies)
+    figure, axes = plt.subplots(figsize=(max(6.0, 1.0 + 0.9 * len(tasks) * max(1, len(policies)) ** 0.5), 4.0))
+    for index, policy in enumerate(policies):
+        offsets = [position - 0.4 + width * (index + 0.5) for position in range(len(tasks))]
+        counts = [by_key.get((task, policy)) for task in tasks]
+        heights = [100 * count.success_rate if count else 0.0 for count in counts]
+        errors = [[100 * (count.success_rate - count.interval[0]) if count else 0.0 for count in counts],
+                  [100 * (count.interval[1] - count.success_rate) if count else 0.0 for count in counts]]
+        bars = axes.bar(offsets, heights, width=width, label=policy, yerr=errors, capsize=2,
+                        error_kw={"elinewidth": 0.8})
+        for bar, count in zip(bars, counts, strict=True):
+            if count is not None:
+                axes.annotate(f"n={count.episodes}", (bar.get_x() + bar.get_width() / 2, 1.0), ha="center",
+                              va="bottom", fontsize=6, rotation=90)
+    axes.set_xticks(range(len(tasks)), tasks, rotation=30, ha="right")
+    axes.set_ylabel("success rate (%), Wilson 95% interval")
+    axes.set_ylim(0, 110)
+    axes.set_title(title)
+    axes.legend()
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+
+
+def write_table(results: list[SuccessCount], out: Path, title: str) -> tuple[Path, Path]:
+    """Write ``out.json`` (``results_json``) and ``out.png`` (``save_bar_chart``); returns both paths."""
+    json_path, png_path = out.with_suffix(".json"), out.with_suffix(".png")
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(results_json(results), indent=2) + "\n")
+    save_bar_chart(results, png_path, title=title)
+    return json_path, png_path

@@ -1,0 +1,189 @@
+"""The ``bullet_tabletop`` suite protocol: demonstration sets, evaluation seeds, the context-swap control, and
+``lerobot-eval`` per task (``lerobot-ip-eval-suite``, ``make results-suite``, ``make demo``).
+
+Protocol. For every task and every demonstration set ``s = 0 … demo_sets − 1``:
+
+* ``num_demos`` scripted demonstrations are recorded on seeds from ``demo_seed + DEMO_SET_STRIDE · s`` (each set its
+  own seeds, disjoint from the other sets' and from every evaluation seed), kept between runs;
+* LeRobot's own ``lerobot-eval`` runs the policy reading them for ``episodes`` episodes on seeds
+  ``eval_seed + episodes · s …`` (``lerobot-eval`` seeds episode ``i`` with ``--seed + i``), so every set meets its
+  own scenes and every policy meets the same scenes;
+* with ``swap``, the policy instead reads the demonstrations of the next task of the suite (``swap_source``; the
+  same seeds), relabelled as this task's: the control that tells reading the demonstrations from a prior that solves
+  the task alone.
+
+Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]`` (the recorded sets), ``runs/<run name>/<task>/
+set-<s>`` (each ``lerobot-eval`` output directory); ``evaluation.success_table`` pools the sets per task.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..sim.recording import record
+
+POLICIES = ("demo_replay", "instant_policy", "do_nothing")
+DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
+DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
+
+
+class SuiteError(ValueError):
+    """Bad suite settings, or a ``lerobot-eval`` run that failed."""
+
+
+@dataclass(frozen=True)
+class SuiteSettings:
+    """What one evaluation of a policy on ``bullet_tabletop`` tasks records, runs and where it writes (module
+    docstring). ``policy_args`` / ``env_args``: ``--policy.KEY=VALUE`` / ``--env.KEY=VALUE`` added to every
+    ``lerobot-eval`` call (``env_args`` for the evaluation only: demonstrations are always recorded clean)."""
+
+    policy: str = "demo_replay"
+    policy_path: str | None = None
+    out: Path = Path("outputs/eval_suite")
+    episodes: int = 10
+    demo_sets: int = 3
+    batch_size: int = 2
+    num_demos: int = 2
+    demo_seed: int = 0
+    eval_seed: int = 1000
+    swap: bool = False
+    task_module: str | None = None
+    policy_args: tuple[str, ...] = ()
+    run_name: str | None = None
+    obs_type: str = "pointcloud"
+    env_args: tuple[str, ...] = ()
+
+    def validate(self) -> None:
+        if self.policy not in POLICIES:
+            raise SuiteError(f"policy must be one of {list(POLICIES)}, got {self.policy!r}")
+        if min(self.episodes, self.demo_sets, self.batch_size, self.num_demos) <= 0:
+            raise SuiteError("episodes, demo_sets, batch_size and num_demos must be positive")
+        if self.policy == "instant_policy" and not self.policy_path:
+            raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
+        if self.swap and self.policy not in DEMONSTRATION_POLICIES:
+            raise SuiteError(f"the context swap needs a policy that reads demonstrations, not {self.policy!r}")
+        if self.num_demos > DEMO_SET_STRIDE // 2:
+            raise SuiteError(f"num_demos must be at most {DEMO_SET_STRIDE // 2} (each set's seeds span "
+                             f"{DEMO_SET_STRIDE})")
+        last_demo_seed = self.demo_seed + DEMO_SET_STRIDE * self.demo_sets
+        last_eval_seed = self.eval_seed + self.episodes * self.demo_sets
+        if self.demo_seed < last_eval_seed and self.eval_seed < last_demo_seed:
+            raise SuiteError(f"demonstration seeds {self.demo_seed}…{last_demo_seed - 1} overlap evaluation seeds "
+                             f"{self.eval_seed}…{last_eval_seed - 1}: choose another demo_seed or eval_seed")
+
+    @property
+    def name(self) -> str:
+        """The run's name: ``run_name``, else the policy, with ``-swap`` for the context-swap control."""
+        return (self.run_name or self.policy) + ("-swap" if self.swap and not self.run_name else "")
+
+    @property
+    def runs_dir(self) -> Path:
+        """``OUT/runs/<name>``: one folder per task, one ``lerobot-eval`` output dir per set below it."""
+        return self.out / "runs" / self.name
+
+    def demo_seed_of(self, demo_set: int) -> int:
+        return self.demo_seed + DEMO_SET_STRIDE * demo_set
+
+    def eval_seed_of(self, demo_set: int) -> int:
+        return self.eval_seed + self.episodes * demo_set
+
+
+def swap_source(task: str, tasks: list[str]) -> str:
+    """The task whose demonstrations the swap control hands to ``task``: the next one in ``tasks`` (cyclically)."""
+    if len(tasks) < 2:
+        raise SuiteError("the context swap needs at least two tasks")
+    return tasks[(tasks.index(task) + 1) % len(tasks)]
+
+
+def demo_root(out: Path, task: str, num_demos: int, demo_seed: int, obs_type: str = "pointcloud",
+              source: str | None = None) -> Path:
+    """Where the demonstrations of ``task`` read by the policy live (``source``: recorded on that task instead and
+    labelled ``task``); for ``rgbd`` the converted dataset (the raw recording sits beside it, ``...-rgbd-raw``)."""
+    suffix = ("" if obs_type == "pointcloud" else f"-{obs_type}") + (f"-from-{source}" if source else "")
+    return out / "demos" / f"{task}-n{num_demos}-s{demo_seed}{suffix}"
+
+
+def record_demonstrations(settings: SuiteSettings, task: str, demos: Path, seed: int, source: str) -> None:
+    """Record ``settings.num_demos`` demonstrations of ``source`` labelled ``task`` into ``demos``; for ``rgbd`` as
+    raw depth, converted (robot removed by its joint state) beside it."""
+    if settings.obs_type != "rgbd":
+        record(source, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
+               task_module=settings.task_module, label=task)
+        return
+    from ..perception.convert import ConvertSettings, convert
+    from ..sim.recording import JOINT_POSITIONS_KEY
+    from ..sim.robot import JOINT_NAMES, low_poly_panda_urdf
+
+    raw = demos.with_name(demos.name + "-raw")
+    record(source, settings.num_demos, raw, f"local/{task}-raw", seed, overwrite=True,
+           task_module=settings.task_module, obs_type="rgbd", label=task)
+    convert(ConvertSettings(
+        input_root=raw, input_repo_id=f"local/{task}-raw", out=demos, repo_id=f"local/{task}",
+        action_source="dataset", urdf=low_poly_panda_urdf(), joint_key=JOINT_POSITIONS_KEY,
+        joint_names=list(JOINT_NAMES), overwrite=True,
+    ))
+
+
+def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path, eval_seed: int, output_dir: Path) -> list[str]:
+    """The ``lerobot-eval`` command line for one task and demonstration set."""
+    command = [
+        str(Path(sys.executable).with_name("lerobot-eval")),
+        "--env.type=bullet_tabletop",
+        f"--env.task={task}",
+        f"--policy.path={settings.policy_path}" if settings.policy_path else f"--policy.type={settings.policy}",
+        f"--eval.n_episodes={settings.episodes}",
+        f"--eval.batch_size={min(settings.batch_size, settings.episodes)}",
+        f"--seed={eval_seed}",
+        f"--output_dir={output_dir}",
+        "--policy.device=cpu",
+    ]
+    if settings.policy in DEMONSTRATION_POLICIES:
+        command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
+                    f"--policy.num_demos={settings.num_demos}"]
+    if settings.task_module:
+        command.append(f"--env.task_module={settings.task_module}")
+    obs_type = (f"--env.obs_type={settings.obs_type}",) if settings.obs_type != "pointcloud" else ()
+    return command + list(settings.policy_args) + list(settings.env_args) + list(obs_type)
+
+
+def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str | None = None) -> Path:
+    """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them;
+    ``source``: the swap control's other task); returns the ``lerobot-eval`` output directory."""
+    seed = settings.demo_seed_of(demo_set)
+    demos = demo_root(settings.out, task, settings.num_demos, seed, settings.obs_type, source)
+    if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
+        record_demonstrations(settings, task, demos, seed, source or task)
+    output_dir = settings.runs_dir / task / f"set-{demo_set}"
+    if output_dir.exists():
+        shutil.rmtree(output_dir)
+    command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
+    completed = subprocess.run(command, capture_output=True, text=True)
+    if completed.returncode != 0:
+        log = settings.runs_dir / f"{task}-set-{demo_set}.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text(completed.stdout + completed.stderr)
+        tail = "\n".join((completed.stdout + completed.stderr).strip().splitlines()[-15:])
+        raise SuiteError(f"lerobot-eval failed on {task}, set {demo_set} (exit {completed.returncode}; full log "
+                         f"{log}):\n{tail}")
+    return output_dir
+
+
+def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str], None] = print) -> list[Path]:
+    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories."""
+    settings.validate()
+    runs = []
+    for task in tasks:
+        source = swap_source(task, tasks) if settings.swap else None
+        for demo_set in range(settings.demo_sets):
+            started = time.perf_counter()
+            runs.append(run_task(settings, task, demo_set, source))
+            with_demos = f" with {source}'s demonstrations" if source else ""
+            report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> "
+                   f"{runs[-1]}")
+    return runs

@@ -1,0 +1,123 @@
+"""``lerobot-ip-bench``: the benchmarks print measured JSON, compare one variant at a time, refuse bad sizes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+
+def test_generate_benchmark_prints_measured_json(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["generate", "--tasks", "1", "--workers", "1", "--repeats", "1", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["benchmark"] == "generate"
+    assert result["frames_per_s_one_worker"] > 0 and result["frames_per_s_total"] > 0
+    assert len(result["runs_frames_per_s_one_worker"]) == 1
+
+
+def test_train_step_benchmark_compares_cached_and_live_frame_encodings(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
+                 "--compare-frame-cache", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["benchmark"] == "train-step" and result["figure"] == "samples_per_s"
+    assert len(result["runs_cached"]) == len(result["runs_live"]) == 3
+    assert min(result["runs_cached"] + result["runs_live"]) > 0
+    assert result["cached_over_live"] == round(result["cached"] / result["live"], 3)
+
+
+def test_train_step_benchmark_compares_autocast_and_float32(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
+                 "--compare-amp", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["figure"] == "samples_per_s" and "use_amp" not in result
+    assert len(result["runs_amp"]) == len(result["runs_float32"]) == 3
+    assert min(result["runs_amp"] + result["runs_float32"]) > 0
+    assert result["amp_over_float32"] == round(result["amp"] / result["float32"], 3)
+
+
+def test_train_step_benchmark_compares_fused_and_loop_adamw_on_the_ladder_recipe(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
+                 "--action-scene-graph", "false", "--num-frequencies", "4", "--compare-fused-adamw", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["figure"] == "samples_per_s" and "fused_adamw" not in result
+    assert result["action_scene_graph"] is False and result["num_frequencies"] == 4
+    assert len(result["runs_fused"]) == len(result["runs_loop"]) == 3
+    assert min(result["runs_fused"] + result["runs_loop"]) > 0
+    assert result["fused_over_loop"] == round(result["fused"] / result["loop"], 3)
+
+
+def fake_timing(monkeypatch, bench: str, option: str, figure: str, on: float, off: float) -> list[dict]:
+    """Replace ``bench_policy.<bench>`` by a fake whose ``figure`` is ``on`` or ``off`` as the config ``option`` is;
+    returns the keyword arguments of every call, in order."""
+    from lerobot_instant_policy.benchmarks import policy as bench_policy
+
+    seen = []
+
+    def fake_bench(preset, **kwargs):
+        seen.append(kwargs)
+        return {"benchmark": bench, option: kwargs[option], figure: on if kwargs[option] else off}
+
+    monkeypatch.setattr(bench_policy, bench, fake_bench)
+    return seen
+
+
+def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monkeypatch):
+    """``--compare-compile-model`` hands ``compile_model`` to the config in alternation (the compiled training step
+    itself is tested equal to the eager one in test_instant_policy_policy.py; compiling the small preset takes
+    minutes, so the timing is faked here)."""
+    from lerobot_instant_policy.cli.bench import main
+
+    seen = fake_timing(monkeypatch, "bench_train_step", "compile_model", "samples_per_s", 2.0, 1.0)
+    assert main(["train-step", "--batch-size", "8", "--amp", "true", "--compare-compile-model", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [kwargs["compile_model"] for kwargs in seen] == [True, False] * 3
+    assert all(kwargs["use_amp"] and kwargs["batch_size"] == 8 for kwargs in seen)
+    assert result["compiled_over_eager"] == 2.0 and "compile_model" not in result
+    assert main(["train-step", "--compile-model", "true", "--json"]) == 0
+    assert seen[-1]["compile_model"] is True
+
+
+def test_inference_benchmark_alternates_compiled_and_eager_sampling(capsys, monkeypatch):
+    """``--compare-compile-inference`` hands ``compile_inference`` to the config in alternation (compiled sampling is
+    tested equal to eager sampling in test_instant_policy_policy.py; the timing is faked here)."""
+    from lerobot_instant_policy.cli.bench import main
+
+    seen = fake_timing(monkeypatch, "bench_inference", "compile_inference", "ms_per_control_step", 10.0, 15.0)
+    assert main(["inference", "--action-scene-graph", "false", "--compare-compile-inference", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert [kwargs["compile_inference"] for kwargs in seen] == [True, False] * 3
+    assert all(kwargs["action_scene_graph"] is False for kwargs in seen)
+    assert result["compiled"] == 10.0 and result["eager"] == 15.0 and "compile_inference" not in result
+    assert result["compiled_over_eager"] == round(10.0 / 15.0, 3)
+    assert main(["inference", "--compile-inference", "true", "--json"]) == 0
+    assert seen[-1]["compile_inference"] is True
+    with pytest.raises(SystemExit) as exit_info:
+        main(["inference", "--compare-compile-inference", "--compare-dense-attention"])
+    assert exit_info.value.code == 2 and "compare one variant at a time" in capsys.readouterr().err
+
+
+def test_train_step_benchmark_compares_one_variant_at_a_time(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train-step", "--compare-amp", "--compare-compile-model"])
+    assert exit_info.value.code == 2
+    assert "compare one variant at a time" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--noise-draws", "--batch-size", "--repeats"])
+def test_train_step_benchmark_refuses_non_positive_sizes(capsys, flag):
+    from lerobot_instant_policy.cli.bench import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train-step", flag, "0"])
+    assert exit_info.value.code == 2
+    assert "--repeats, --batch-size and --noise-draws must be positive" in capsys.readouterr().err
