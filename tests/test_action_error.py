@@ -13,7 +13,7 @@ from lerobot_instant_policy.cli.action_error import main as action_error_main
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.evaluation import action_error as ae
 from lerobot_instant_policy.evaluation import demo
-from lerobot_instant_policy.evaluation.loss_curve import LossCurveError
+from lerobot_instant_policy.evaluation.checkpoints import EvaluationError
 
 SHIPPED = demo.SHIPPED_CHECKPOINT
 
@@ -103,7 +103,7 @@ def test_chunk_errors_measure_known_offsets():
 def test_bad_inputs_give_clear_errors(held_out_root, tmp_path, capsys):
     with pytest.raises(ae.ActionErrorError, match=r"N can be at most 2"):
         _run(held_out_root, ns=[3])
-    with pytest.raises(LossCurveError, match="does not exist"):
+    with pytest.raises(EvaluationError, match="does not exist"):
         _run(tmp_path / "missing")
     with pytest.raises(ae.ActionErrorError, match="K"):
         _run(held_out_root, ks=[0])

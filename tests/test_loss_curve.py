@@ -18,13 +18,11 @@ from test_lerobot_train import run_train
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.cli.loss_curve import main as loss_curve_main
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.evaluation.checkpoints import EvaluationError, find_checkpoints, load_checkpoint
 from lerobot_instant_policy.evaluation.loss_curve import (
     LossCurveCache,
-    LossCurveError,
     LossEstimate,
     evaluate_loss,
-    find_checkpoints,
-    load_checkpoint,
     load_evaluation_set,
     prior_only_loss,
 )
@@ -162,10 +160,10 @@ def test_errors_name_the_problem(run, tmp_path, capsys):
     assert code == 2 and "is a 'act' policy, not 'instant_policy'" in err
 
     config = InstantPolicyConfig(device="cpu")
-    with pytest.raises(LossCurveError, match="samples must be at least 1"):
+    with pytest.raises(EvaluationError, match="samples must be at least 1"):
         load_evaluation_set("train", base / "train", config, samples=0, seed=0)
     evaluation = load_evaluation_set("train", base / "train", config, samples=4, seed=0)
-    with pytest.raises(LossCurveError, match="batch_size must be at least 1"):
+    with pytest.raises(EvaluationError, match="batch_size must be at least 1"):
         evaluate_loss(InstantPolicyPolicy(config), None, evaluation, batch_size=0)
 
 

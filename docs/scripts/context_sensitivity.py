@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from lerobot_instant_policy.evaluation.action_error import load_held_out_tasks, predict_task, swapped_context
-from lerobot_instant_policy.evaluation.loss_curve import load_policy
+from lerobot_instant_policy.evaluation.checkpoints import load_policy
 
 
 def captured_states(policy, tasks) -> dict[str, list[np.ndarray]]:

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from goal_probe import read_tasks, task_features
 
-from lerobot_instant_policy.evaluation.loss_curve import load_policy
+from lerobot_instant_policy.evaluation.checkpoints import load_policy
 
 
 def main() -> None:

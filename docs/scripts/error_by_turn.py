@@ -31,7 +31,7 @@ from lerobot_instant_policy.evaluation.action_error import (
     predict_task,
     swapped_context,
 )
-from lerobot_instant_policy.evaluation.loss_curve import load_policy
+from lerobot_instant_policy.evaluation.checkpoints import load_policy
 
 BINS = {"turn_to_goal_deg": [0, 30, 60, 90, 181], "distance_to_goal_mm": [0, 30, 80, 150, 2000]}
 

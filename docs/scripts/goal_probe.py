@@ -43,7 +43,7 @@ import torch
 
 from lerobot_instant_policy.contract import poses_from_vectors_torch
 from lerobot_instant_policy.data.demonstrations import open_demo_dataset, read_demonstration
-from lerobot_instant_policy.evaluation.loss_curve import load_policy
+from lerobot_instant_policy.evaluation.checkpoints import load_policy
 from lerobot_instant_policy.geometry.rigid_torch import invert_rigid, transform_points
 
 RIDGE_STRENGTHS = (1e-1, 1.0, 10.0, 100.0, 1e3, 1e4, 1e5)

@@ -28,7 +28,7 @@ from lerobot_instant_policy.evaluation.action_error import (
     load_held_out_tasks,
     swapped_context,
 )
-from lerobot_instant_policy.evaluation.loss_curve import load_policy
+from lerobot_instant_policy.evaluation.checkpoints import load_policy
 
 
 def main() -> None:

@@ -79,7 +79,7 @@ def bench_inference(
     from ..modeling_instant_policy import InstantPolicyPolicy
 
     if policy_path is not None:
-        from ..evaluation.loss_curve import load_policy
+        from ..evaluation.checkpoints import load_policy
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
         policy = load_policy(policy_path, device, num_demos=num_demos, num_waypoints=num_waypoints, **overrides)

@@ -11,7 +11,7 @@ import sys
 
 from ..data.demonstrations import DemonstrationError
 from ..evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N, ActionErrorError, action_error
-from ..evaluation.loss_curve import LossCurveError
+from ..evaluation.checkpoints import EvaluationError
 
 PROG = "lerobot-ip-action-error"
 
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed, args.K,
                               args.N, args.L, tuple(args.default), not args.no_untrained, args.repo_id, args.device)
-    except (ActionErrorError, LossCurveError, DemonstrationError, FileNotFoundError) as error:
+    except (ActionErrorError, EvaluationError, DemonstrationError, FileNotFoundError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     if not all(math.isfinite(v) for row in result["settings"] for v in row.values() if isinstance(v, float)):

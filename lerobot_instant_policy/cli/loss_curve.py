@@ -16,7 +16,8 @@ import json
 import sys
 
 from ..data.demonstrations import DemonstrationError
-from ..evaluation.loss_curve import LossCurveError, loss_curve
+from ..evaluation.checkpoints import EvaluationError
+from ..evaluation.loss_curve import loss_curve
 
 PROG = "lerobot-ip-loss-curve"
 
@@ -47,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.redirect_stdout(sys.stderr):  # LeRobot prints while loading; stdout carries only the summary
             summary = loss_curve(args.run, args.train_root, args.val_root, args.out, args.json, args.train_repo_id,
                                  args.val_repo_id, args.samples, args.batch_size, args.seed, args.device)
-    except (LossCurveError, DemonstrationError, FileNotFoundError, PermissionError) as error:
+    except (EvaluationError, DemonstrationError, FileNotFoundError, PermissionError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(summary, indent=2))

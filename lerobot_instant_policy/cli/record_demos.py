@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..sim.configuration_bullet_tabletop import OBS_TYPES
-from ..sim.recording import IMAGE_KEY, check, record
+from ..sim.recording import IMAGE_KEY, check, check_table, record
 from ..sim.task_api import get_task, task_names
 
 
@@ -53,15 +53,7 @@ def main(argv: list[str] | None = None) -> int:
                 get_task(task_names()[0], args.task_module)
                 tasks = task_names()
             rows = check(tasks, args.episodes, args.seed, args.task_module)
-            if args.json:
-                print(json.dumps(rows))
-            else:
-                print(f"{'task':<16} {'scripted':>9} {'do-nothing':>11}  failed seeds")
-                for row in rows:
-                    print(
-                        f"{row['task']:<16} {row['scripted_success']:>9.0%} {row['idle_success']:>11.0%}  "
-                        f"{row['scripted_failed_seeds']}"
-                    )
+            print(json.dumps(rows) if args.json else check_table(rows))
             return 0
         if not (args.task and args.out and args.repo_id):
             parser.error("recording needs --task, --out and --repo-id (or use --list-tasks / --check)")

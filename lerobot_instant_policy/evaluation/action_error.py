@@ -44,7 +44,8 @@ from ..configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_INFERENCE_
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
 from ..modeling_instant_policy import InstantPolicyPolicy
-from .loss_curve import check_pseudo_demo_root, load_policy
+from .checkpoints import load_policy
+from .loss_curve import check_pseudo_demo_root
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
 
@@ -119,7 +120,7 @@ def summarise(errors: list[dict[str, np.ndarray]]) -> dict:
 def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, horizon: int, seed: int,
                         repo_id: str | None = None) -> list[HeldOutTask]:
     """The first ``num_tasks`` pseudo-tasks of the pseudo-demonstration dataset at ``root`` (each with ≥ 2 episodes),
-    with ``frames_per_task`` seeded frames (all when shorter) of each live (last) episode; ``LossCurveError`` /
+    with ``frames_per_task`` seeded frames (all when shorter) of each live (last) episode; ``EvaluationError`` /
     ``DemonstrationError`` / ``ActionErrorError`` naming the problem."""
     if num_tasks < 1 or frames_per_task < 1:
         raise ActionErrorError(f"tasks and frames-per-task must be at least 1, got {num_tasks}, {frames_per_task}")
@@ -241,7 +242,7 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
 
     Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained``, ``hold`` and
     ``swap`` references at the default setting, ``context_gain`` (swap / own error at the default setting), the dataset and sample description and the wall time. Raises
-    ``ActionErrorError`` / ``LossCurveError`` / ``DemonstrationError`` on bad input (N ≥ demos per task, …).
+    ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad input (N ≥ demos per task, …).
     """
     ks, ns, ls, default = list(ks), list(ns), list(ls), tuple(default)
     _check_range("K (denoising steps)", ks + [default[0]], SUPPORTED_INFERENCE_STEPS)

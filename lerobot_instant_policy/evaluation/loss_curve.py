@@ -24,8 +24,6 @@ picture.
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import hashlib
 import json
 import math
@@ -43,26 +41,20 @@ from ..data.context_bank import ContextBank
 from ..data.demonstrations import check_dataset_features
 from ..modeling_instant_policy import InstantPolicyPolicy
 from ..pseudo_demos.generation import DEMOS_FILE, TASKS_FILE
+from .checkpoints import (
+    Checkpoint,
+    EvaluationError,
+    checkpoint_config,
+    find_checkpoints,
+    load_checkpoint,
+    weights_fingerprint,
+)
 
-POLICY_TYPE = "instant_policy"
 LOSS_PARTS = ("loss", "translation", "rotation", "gripper")
-PREPROCESSOR_FILE = "policy_preprocessor.json"
 CACHE_FORMAT = 2
 #: Legend label of each curve of :func:`loss_curve`: the training set, the held-out set, and the held-out set with
 #: swapped contexts.
 CURVE_LABELS = {"train": "training", "val": "validation (held-out)", "val_swap": "held-out, swapped context"}
-
-
-class LossCurveError(ValueError):
-    """A run without checkpoints, a dataset that is not a pseudo-demonstration dataset, a foreign checkpoint, …"""
-
-
-@dataclass(frozen=True)
-class Checkpoint:
-    """``path``: a ``pretrained_model`` directory saved by ``lerobot-train`` after ``step`` optimiser steps."""
-
-    step: int
-    path: Path
 
 
 @dataclass(frozen=True)
@@ -108,88 +100,16 @@ class EvaluationSet:
                 "tasks": self.meta.total_tasks, "frames": self.meta.total_frames, "samples": len(self.indices)}
 
 
-# ---------------------------------------------------------------------------------------------------- checkpoints
-def find_checkpoints(run_dir: str | Path) -> list[Checkpoint]:
-    """The run's checkpoints in step order (the ``last`` link and unfinished checkpoints without weights skipped)."""
-    folder = Path(run_dir) / "checkpoints"
-    found = []
-    if folder.is_dir():
-        for entry in folder.iterdir():
-            model = entry / "pretrained_model"
-            if entry.is_symlink() or not entry.name.isdigit():
-                continue
-            if (model / "config.json").is_file() and (model / "model.safetensors").is_file():
-                found.append(Checkpoint(int(entry.name), model))
-    if not found:
-        raise LossCurveError(
-            f"no checkpoints found in {run_dir}: expected {folder}/<step>/pretrained_model with config.json and "
-            "model.safetensors, as lerobot-train --save_freq writes them"
-        )
-    return sorted(found, key=lambda checkpoint: checkpoint.step)
-
-
-def checkpoint_config(checkpoint: Checkpoint):
-    """The checkpoint's ``InstantPolicyConfig``; ``LossCurveError`` when it holds another policy type."""
-    from lerobot.configs.policies import PreTrainedConfig
-
-    config_file = checkpoint.path / "config.json"
-    try:
-        policy_type = json.loads(config_file.read_text()).get("type")
-    except (OSError, json.JSONDecodeError, AttributeError) as error:
-        raise LossCurveError(f"cannot read the policy config {config_file}: {error}") from error
-    if policy_type != POLICY_TYPE:
-        raise LossCurveError(f"checkpoint {checkpoint.path} is a {policy_type!r} policy, not {POLICY_TYPE!r}")
-    return PreTrainedConfig.from_pretrained(checkpoint.path)
-
-
-def load_policy(path: str | Path, device: str = "cpu", **overrides) -> InstantPolicyPolicy:
-    """The ``instant_policy`` checkpoint at ``path`` (a ``pretrained_model`` directory) on ``device``, in eval mode,
-    with the config fields in ``overrides`` replaced. LeRobot's "Loading weights …" print goes to stderr, so CLIs
-    that print JSON keep stdout clean. ``LossCurveError`` when ``path`` holds another policy type."""
-    config = checkpoint_config(Checkpoint(step=0, path=Path(path)))
-    config = dataclasses.replace(config, device=device, **overrides)
-    with contextlib.redirect_stdout(sys.stderr):
-        return InstantPolicyPolicy.from_pretrained(path, config=config).eval()
-
-
-def load_checkpoint(checkpoint: Checkpoint, device: str = "cpu"):
-    """``(policy, preprocessor)`` of a checkpoint on ``device``: the policy in eval mode, the preprocessor that
-    ``lerobot-train`` saved beside it (its device step moved to ``device``)."""
-    from lerobot.processor import PolicyProcessorPipeline
-    from lerobot.processor.converters import batch_to_transition, transition_to_batch
-
-    policy = load_policy(checkpoint.path, device)
-    if not (checkpoint.path / PREPROCESSOR_FILE).is_file():
-        raise LossCurveError(f"checkpoint {checkpoint.path} has no {PREPROCESSOR_FILE}")
-    preprocessor = PolicyProcessorPipeline.from_pretrained(
-        checkpoint.path,
-        config_filename=PREPROCESSOR_FILE,
-        overrides={"device_processor": {"device": device}},
-        to_transition=batch_to_transition,
-        to_output=transition_to_batch,
-    )
-    return policy, preprocessor
-
-
-def weights_fingerprint(checkpoint: Checkpoint) -> str:
-    """SHA-256 of the checkpoint's ``model.safetensors``."""
-    digest = hashlib.sha256()
-    with open(checkpoint.path / "model.safetensors", "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 22), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 # ---------------------------------------------------------------------------------------------------- datasets
 def check_pseudo_demo_root(root: str | Path) -> Path:
     """``root`` if it holds a pseudo-demonstration dataset written by ``lerobot-ip-generate`` (a LeRobotDataset with
-    ``meta/pseudo_tasks.jsonl`` and ``meta/pseudo_demos.jsonl``), else ``LossCurveError`` saying what is missing."""
+    ``meta/pseudo_tasks.jsonl`` and ``meta/pseudo_demos.jsonl``), else ``EvaluationError`` saying what is missing."""
     root = Path(root)
     if not root.is_dir():
-        raise LossCurveError(f"dataset root {root} does not exist")
+        raise EvaluationError(f"dataset root {root} does not exist")
     missing = [name for name in ("info.json", TASKS_FILE, DEMOS_FILE) if not (root / "meta" / name).is_file()]
     if missing:
-        raise LossCurveError(
+        raise EvaluationError(
             f"{root} is not a pseudo-demonstration dataset (written by lerobot-ip-generate): meta/ lacks {missing}"
         )
     return root
@@ -208,13 +128,13 @@ def load_evaluation_set(name: str, root: str | Path, config, samples: int, seed:
                         repo_id: str | None = None) -> EvaluationSet:
     """``samples`` frames (all when the dataset has fewer) drawn without replacement with ``seed`` from the
     pseudo-demonstration dataset at ``root`` (repo id ``local/<root name>`` unless given), for policies with the
-    ``InstantPolicyConfig`` ``config`` (its horizon and number of waypoints). ``LossCurveError`` or
+    ``InstantPolicyConfig`` ``config`` (its horizon and number of waypoints). ``EvaluationError`` or
     ``DemonstrationError`` when ``root`` is missing, not a pseudo-demonstration dataset or outside the data contract.
     """
     from lerobot.datasets import LeRobotDatasetMetadata
 
     if samples < 1:
-        raise LossCurveError(f"samples must be at least 1, got {samples}")
+        raise EvaluationError(f"samples must be at least 1, got {samples}")
     root = check_pseudo_demo_root(root)
     repo_id = repo_id or f"local/{root.name}"
     meta = LeRobotDatasetMetadata(repo_id, root=root)
@@ -244,7 +164,7 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
     next pseudo-task instead of its own (everything else drawn the same). The policy is left in the mode it was in.
     """
     if batch_size < 1:
-        raise LossCurveError(f"batch_size must be at least 1, got {batch_size}")
+        raise EvaluationError(f"batch_size must be at least 1, got {batch_size}")
     bank = evaluation.bank.with_swapped_contexts() if swap_context else evaluation.bank
     policy.set_training_bank(bank, policy.frame_encodings(evaluation.meta))
     loader = _loader(evaluation, batch_size)
@@ -266,7 +186,7 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
     total = len(evaluation.indices)
     means = {part: value / total for part, value in sums.items()}
     if not all(math.isfinite(value) for value in means.values()):
-        raise LossCurveError(f"non-finite loss on {evaluation.name} frames: {means}")
+        raise EvaluationError(f"non-finite loss on {evaluation.name} frames: {means}")
     return LossEstimate(**means, samples=total)
 
 
@@ -449,11 +369,11 @@ def loss_curve(run_dir: str | Path, train_root: str | Path, val_root: str | Path
 def _evaluate_checkpoint(checkpoint: Checkpoint, config, evaluations: dict[str, EvaluationSet], batch_size: int,
                          seed: int, device: str, prior: dict | None) -> tuple[dict[str, LossEstimate], dict]:
     """The checkpoint's losses on every evaluation set and on ``val`` with swapped contexts, and the prior-only level
-    on ``val`` (``prior`` when already known). ``LossCurveError`` when its data layout differs from ``config``'s."""
+    on ``val`` (``prior`` when already known). ``EvaluationError`` when its data layout differs from ``config``'s."""
     policy, preprocessor = load_checkpoint(checkpoint, device)
     for name in ("num_waypoints", "horizon", "num_points"):
         if getattr(policy.config, name) != getattr(config, name):
-            raise LossCurveError(
+            raise EvaluationError(
                 f"checkpoint {checkpoint.path} has {name}={getattr(policy.config, name)}, the run's last "
                 f"checkpoint {getattr(config, name)}: evaluate runs with one data layout"
             )

@@ -207,3 +207,11 @@ def check(tasks: list[str], episodes: int, seed: int, task_module: str | None = 
             }
         )
     return rows
+
+
+def check_table(rows: list[dict]) -> str:
+    """``check``'s rows as text: task, scripted and do-nothing success, the scripted demonstrator's failed seeds."""
+    lines = [f"{'task':<16} {'scripted':>9} {'do-nothing':>11}  failed seeds"]
+    lines += [f"{row['task']:<16} {row['scripted_success']:>9.0%} {row['idle_success']:>11.0%}  "
+              f"{row['scripted_failed_seeds']}" for row in rows]
+    return "\n".join(lines)
