@@ -110,10 +110,15 @@ train-gpu: $(if $(TRAIN_ROUNDS_ON_PATH),,$(INSTALLED))
 # move between demonstrations afterwards, the paper's setting), 5,000 steps of batch 8 per round in bfloat16 autocast
 # (1.28x float32 measured on this AVX-512-bf16 CPU without AMX; compile 1.05x, not worth its 2 minutes per round).
 # Validation: 24 held-out moved-object pseudo-tasks (configs/generate/rung4_full_bounded_val.json). Stop it any time
-# and run it again to resume; raise --rounds to go on past the last.
+# and run it again to resume; raise --rounds to go on past the last. OpenMP waits passively: with generation, the
+# loader and other jobs on the 2 cores, spinning threads made a step take 7 s instead of 0.2 s. On a machine without
+# the first campaign's outputs/, continue from its committed step-15,000 weights (checkpoints/campaign_015000,
+# moved objects only): make campaign CAMPAIGN_CONFIG=configs/train_rounds/cpu_campaign_continue.json
+CAMPAIGN_CONFIG ?= configs/train_rounds/cpu_campaign.json
 CAMPAIGN_ARGS ?=
 campaign: $(INSTALLED)
-	OMP_NUM_THREADS=2 $(VENV)/bin/lerobot-ip-train-rounds --config configs/train_rounds/cpu_campaign.json $(CAMPAIGN_ARGS)
+	OMP_NUM_THREADS=2 OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/lerobot-ip-train-rounds --config $(CAMPAIGN_CONFIG) \
+		$(CAMPAIGN_ARGS)
 
 # docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
 # every task, 10 episodes each (issue 14's RGB-D vs segmented table).
