@@ -304,3 +304,17 @@ def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and
     for stage in ("generate-000", "val", "generate-001", "train-000", "train-001", "action-error-000008"):
         assert stage in summary["minutes"]
     assert json.loads((out / "summary.json").read_text()) == summary
+
+
+@pytest.mark.parametrize("name", ["gpu.json", "cpu_campaign.json", "cpu_campaign_continue.json"])
+def test_the_shipped_round_configs_are_valid_and_the_continued_campaign_starts_from_committed_weights(name, capsys,
+                                                                                                       monkeypatch):
+    """Every preset under configs/train_rounds validates and plans its stages; the continued campaign's start is the
+    committed checkpoint (a fresh clone has no outputs/), on moved objects only."""
+    repo = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(repo)
+    assert main(["--config", f"configs/train_rounds/{name}", "--dry-run"]) == 0
+    printed = capsys.readouterr().out
+    if name == "cpu_campaign_continue.json":
+        assert f"--policy.path={repo / 'checkpoints' / 'campaign_015000'}" in printed
+        assert "--shared-layout-fraction 0.0" in printed
