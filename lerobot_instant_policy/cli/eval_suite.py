@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..evaluation.success_table import DEFAULT_ENV_TYPE, collect_results, format_table, write_table
 from ..evaluation.suite import POLICIES, SuiteError, SuiteSettings, run_suite
-from ..sim.configuration_bullet_tabletop import OBS_TYPES
+from ..sim.env import OBS_TYPES
 from ..sim.task_api import get_task, task_names
 
 

@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..sim.configuration_bullet_tabletop import OBS_TYPES
+from ..sim.env import OBS_TYPES
 from ..sim.recording import IMAGE_KEY, check, check_table, record
 from ..sim.task_api import get_task, task_names
 

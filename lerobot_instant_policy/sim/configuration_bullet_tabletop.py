@@ -21,8 +21,6 @@ from lerobot.envs.configs import EnvConfig
 
 from ..contract import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
 
-OBS_TYPES = ("pointcloud", "rgbd")  # segmented clouds from the simulator, or raw depth (see sim.env)
-
 
 def make_bullet_tabletop_env(task: str, task_module: str | None, observe_pointcloud: bool = True, **config_kwargs):
     """One ``BulletTabletopEnv`` (a picklable factory for gymnasium's vector envs)."""
@@ -68,6 +66,8 @@ class BulletTabletopEnvConfig(EnvConfig):
     def __post_init__(self):
         if self.num_points <= 0 or self.render_size <= 0 or self.fps <= 0:
             raise ValueError("num_points, render_size and fps must be positive")
+        from .env import OBS_TYPES  # the env module loads pybullet: only when a config is built
+
         if self.obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
         self.features = {

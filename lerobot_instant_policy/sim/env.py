@@ -40,7 +40,6 @@ from ..pseudo_demos.rendering import (
     default_cameras,
     render_segmented_points,
 )
-from .configuration_bullet_tabletop import OBS_TYPES
 from .demonstrator import interpolate_waypoints
 from .robot import PandaRobot, RobotConfig
 from .scene import TABLE_CENTRE, TABLE_HALF_EXTENTS, Scene
@@ -49,6 +48,7 @@ from .task_api import Task, get_task
 PHYSICS_TIMESTEP = 1.0 / 240.0
 SETTLE_STEPS = 48
 _GL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+OBS_TYPES = ("pointcloud", "rgbd")  # segmented clouds from the simulator, or raw depth (module docstring)
 
 
 @dataclass
