@@ -92,7 +92,6 @@ def main(argv: list[str] | None = None) -> int:
         run_name=args.run_name, obs_type=args.obs_type, env_args=tuple(args.env_args),
     )
     try:
-        settings.validate()
         runs = run_suite(settings, resolve_tasks(args.tasks, args.task_module),
                          report=lambda line: print(line, flush=True))
     except (SuiteError, ValueError, RuntimeError, FileExistsError) as error:

@@ -194,9 +194,10 @@ def format_table(results: list[SuccessCount]) -> str:
 def results_json(results: list[SuccessCount]) -> dict:
     """The table as JSON: per (task, policy), per (group, policy) and per policy overall, each with its counts,
     ``success_rate`` in [0, 1] and Wilson interval; ``mean_success_rate``: each policy's mean over tasks."""
+    tasks_of = dict(grouped_tasks(results))
     return {
         "rows": [result.as_json() for result in results],
-        "groups": [{**result.as_json(), "group": result.task, "tasks": dict(grouped_tasks(results))[result.task]}
+        "groups": [{**result.as_json(), "group": result.task, "tasks": tasks_of[result.task]}
                    for result in pool(results, task_group)],
         "overall": {result.policy: result.as_json() for result in pool(results, lambda task: "overall")},
         "mean_success_rate": policy_means(results),
