@@ -153,6 +153,14 @@ class InstantPolicyConfig(PreTrainedConfig):
     offline) are the context. Execution: ``n_action_steps`` (≤ ``horizon``) actions of each prediction are run
     before predicting again, and with ``replan_on_gripper_change`` the queue is dropped after an action that
     changes the gripper command, so the policy looks again once the gripper has acted.
+
+    Beyond the paper (issue 30.4): with ``replay_init_strength`` = s in (0, 1] denoising starts from the
+    demonstrated actions replayed into the live scene instead of from pure noise. At an episode's first prediction
+    the demonstrations' first-frame clouds are registered onto the live cloud (the ``demo_replay`` baseline's
+    :func:`~.data.replay_plan.plan_replay`, yaw-only trimmed ICP) and the best fit's actions, moved by the estimated
+    motion, become the plan; each prediction takes the plan's next ``horizon`` actions from the episode's step count,
+    noises them to the timestep of the last ⌈s·K⌉ of the K DDIM steps and runs only those (SDEdit). ``None`` (shipped):
+    the paper's path, pure noise, the demonstrations read through the graph alone.
     """
 
     preset: str = "small"
@@ -205,6 +213,7 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     n_action_steps: int = 8
     replan_on_gripper_change: bool = True
+    replay_init_strength: float | None = None
 
     push_to_hub: bool = False
 
@@ -246,6 +255,8 @@ class InstantPolicyConfig(PreTrainedConfig):
                 f"diffusion_train_steps ({self.diffusion_train_steps}) must be at least inference_steps "
                 f"({self.inference_steps})"
             )
+        if self.replay_init_strength is not None and not 0.0 < self.replay_init_strength <= 1.0:
+            raise ValueError(f"replay_init_strength must lie in (0, 1] or be None, got {self.replay_init_strength}")
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(f"n_action_steps must lie in 1…horizon ({self.horizon}), got {self.n_action_steps}")
         if self.n_obs_steps != 1:

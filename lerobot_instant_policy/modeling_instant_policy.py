@@ -38,7 +38,9 @@ from .contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
+from .data.replay_plan import ReplayPlan, plan_replay
 from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
+from .geometry.registration import RegistrationConfig
 from .geometry.rigid_torch import compose, invert_rigid
 from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
 from .model.occupancy import load_geometry_encoder
@@ -94,6 +96,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             self._action_chunks = ActionChunks.from_dataset(dataset_meta.repo_id, dataset_meta.root)
         self._queue: deque[Tensor] = deque()
         self._last_gripper: Tensor | None = None
+        self._replay_plans: list[ReplayPlan] | None = None
+        self._episode_step = 0
         self._demonstrations = DemonstrationSource(
             "instant_policy", config.demo_repo_id, config.demo_root, config.num_demos
         )
@@ -111,9 +115,12 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return [parameter for parameter in self.parameters() if parameter.requires_grad]
 
     def reset(self) -> None:
-        """Start a new episode: drop queued actions and the last gripper command (demo contexts are kept)."""
+        """Start a new episode: drop queued actions, the last gripper command and the replay plans (demo contexts are
+        kept)."""
         self._queue.clear()
         self._last_gripper = None
+        self._replay_plans = None
+        self._episode_step = 0
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
         """Training loss of a batch from the training dataset.
@@ -181,12 +188,15 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
         Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), with
         ``num_inference_steps`` DDIM steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
+        With ``config.replay_init_strength`` the denoising starts from the episode's replay plan at the current step
+        (:meth:`replay_guess`).
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
         T_world_ee, gripper_open = poses_from_vectors_torch(state)
         gripper = (gripper_open > 0.5).to(state.dtype)
         steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
+        guess = self.replay_guess(points_world, T_world_ee, tasks) if self.config.replay_init_strength else None
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
         for task in dict.fromkeys(tasks):
             rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
@@ -201,7 +211,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 demo_waypoint_features=waypoint_features.expand(count, *waypoint_features.shape[1:]),
             )
             T_ee_actions, action_gripper = self.network.sample_actions(
-                context, num_inference_steps=steps, generator=generator
+                context, num_inference_steps=steps, generator=generator,
+                initial=None if guess is None else guess[rows], strength=self.config.replay_init_strength or 1.0,
             )
             chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk
@@ -224,11 +235,34 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             chunk = self.predict_action_chunk(batch, **kwargs)
             self._queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
         action = self._queue.popleft()
+        self._episode_step += 1
         previous = state[:, 7] if self._last_gripper is None or len(self._last_gripper) != len(state) else self._last_gripper
         if self.config.replan_on_gripper_change and bool(((action[:, 7] > 0.5) != (previous > 0.5)).any()):
             self._queue.clear()
         self._last_gripper = action[:, 7].clone()
         return action
+
+    @torch.no_grad()
+    def replay_guess(self, points_world: Tensor, T_world_ee: Tensor, tasks: list[str]) -> Tensor:
+        """The denoising start of ``config.replay_init_strength``: the diffusion variable ``(B, T, 7)`` of each row's
+        replay plan at the episode's current step, in the row's current EE frame.
+
+        The plans (:func:`~.data.replay_plan.plan_replay` of each row's task demonstrations onto its cloud
+        ``points_world (B, P, 3)``) are made at the episode's first prediction and kept until :meth:`reset`;
+        ``T_world_ee (B, 4, 4)`` is the current EE pose. Planned action ``step + j`` is the guess for action ``j``."""
+        if self._replay_plans is None or len(self._replay_plans) != len(tasks):
+            clouds = points_world.detach().cpu().numpy()
+            registration = RegistrationConfig(yaw_only=True)
+            self._replay_plans = [
+                plan_replay(task, self._demonstrations.get(task), cloud, registration)
+                for task, cloud in zip(tasks, clouds, strict=True)
+            ]
+        planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])
+        T_world_planned, planned_gripper = poses_from_vectors_torch(
+            torch.from_numpy(planned).to(device=T_world_ee.device, dtype=T_world_ee.dtype)
+        )
+        T_ee_planned = compose(invert_rigid(T_world_ee)[:, None], T_world_planned)
+        return self.network.diffusion.normalize(T_ee_planned, planned_gripper)
 
     # ------------------------------------------------------------------ checkpoints
     @classmethod

@@ -149,6 +149,8 @@ def test_optimizer_and_scheduler_presets():
         ({"compile_model": True, "dense_attention": False}, "compile_model and compile_inference compile the dense"),
         ({"compile_inference": True, "dense_attention": False}, "compile_model and compile_inference compile the dense"),
         ({"max_translation": 0.0}, "max_translation and max_rotation_deg must be positive"),
+        ({"replay_init_strength": 0.0}, r"replay_init_strength must lie in \(0, 1\] or be None, got 0.0"),
+        ({"replay_init_strength": 1.5}, r"replay_init_strength must lie in \(0, 1\]"),
     ],
 )
 def test_invalid_values_are_refused_with_a_clear_message(overrides, message):

@@ -123,6 +123,37 @@ def test_defect_2_ddim_renoises_between_steps():
     torch.testing.assert_close(result, seen[-1][2])
 
 
+@pytest.mark.parametrize("strength, timesteps", [(0.25, [24]), (0.5, [49, 24]), (1.0, [99, 74, 49, 24])])
+def test_denoising_from_a_guess_runs_the_last_steps_from_the_noised_guess(strength, timesteps):
+    """SDEdit (replay_init_strength): the guess is noised to the first kept timestep with the seed's noise, only the
+    last ⌈strength·K⌉ DDIM steps run, and a denoiser that predicts the guess returns it."""
+    diffusion = _network().diffusion
+    batch = _batch(dtype=torch.float64)
+    guess = diffusion.normalize(batch["T_ee_actions"], batch["action_gripper"])
+    T_guess, guess_gripper = diffusion.unnormalize(guess)
+    seen = []
+
+    def predict(T_noisy, gripper, step):
+        seen.append((int(step[0]), torch.cat([diffusion.normalize_poses(T_noisy), gripper[..., None]], dim=-1)))
+        flows = diffusion.flow_targets(T_guess, T_noisy)
+        return torch.cat([flows, guess_gripper[..., None, None].expand(*flows.shape[:3], 1)], dim=-1)
+
+    result = diffusion.sample(predict, 2, 4, generator=torch.Generator().manual_seed(3), dtype=torch.float64,
+                              initial=guess, strength=strength)
+    assert [step for step, _ in seen] == timesteps
+    noise = torch.randn(2, 8, 7, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    torch.testing.assert_close(seen[0][1], diffusion.add_noise(guess, noise, torch.tensor([timesteps[0]] * 2)))
+    torch.testing.assert_close(result, guess)
+
+
+def test_bad_guesses_and_strengths_are_refused():
+    diffusion = _network().diffusion
+    with pytest.raises(ValueError, match=r"strength must lie in \(0, 1\]"):
+        diffusion.sample(lambda *args: None, 2, 4, initial=torch.zeros(2, 8, 7), strength=0.0)
+    with pytest.raises(ValueError, match=r"initial must have shape \(B, T, 7\)"):
+        diffusion.sample(lambda *args: None, 2, 4, initial=torch.zeros(2, 4, 7), strength=0.5)
+
+
 def test_defect_3_action_frame_transform_is_R_transpose_of_p_minus_t():
     g = torch.Generator().manual_seed(0)
     points = torch.randn(1, 5, 3, generator=g, dtype=torch.float64)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
-from synthetic_demos import NUM_FRAMES, make_demonstration, object_pose, write_demo_dataset
+from synthetic_demos import NUM_FRAMES, expected_actions, make_demonstration, object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
@@ -145,6 +145,37 @@ def test_select_action_runs_the_queue_and_replans_after_a_gripper_change(policy,
     with pytest.raises(ValueError, match="batch size changed"):
         policy.select_action(live_observation(batch=2))
     policy.reset()
+
+
+def test_denoising_starts_from_the_replayed_demonstration_at_the_episode_step(monkeypatch):
+    """replay_init_strength: the guess is the best demonstration registered onto the live cloud, its actions from
+    the episode's current step, in the current EE frame; reset() plans again for the next scene."""
+    config = InstantPolicyConfig(device="cpu", replay_init_strength=0.5, max_translation=0.05, max_rotation_deg=30.0)
+    policy = InstantPolicyPolicy(config).eval()
+    policy.set_demonstrations(lift_demos(2))
+    sampled = []
+
+    def replay_exactly(context, initial=None, strength=1.0, **kwargs):  # the network's output: its guess, unchanged
+        sampled.append(strength)
+        T_ee_actions, gripper = policy.network.diffusion.unnormalize(initial)
+        return T_ee_actions, (gripper > 0).float()
+
+    monkeypatch.setattr(policy.network, "sample_actions", replay_exactly)
+    for T_world_object, steps in ((object_pose(0.52, -0.05, 35.0), 3), (object_pose(0.42, 0.12, -50.0), 0)):
+        policy.reset()
+        demo = make_demonstration(T_world_object, TASK, seed=7)
+
+        def observation(frame: int) -> dict:  # the EE where the replay has taken it; the scene planned at frame 0
+            return {POINTCLOUD_KEY: torch.from_numpy(demo.points_world[frame:frame + 1]),
+                    STATE_KEY: torch.from_numpy(demo.state[frame:frame + 1]), "task": [TASK]}
+
+        for step in range(steps):
+            policy.select_action(observation(step))
+        chunk = policy.predict_action_chunk(observation(steps))[0].numpy()
+        expected = expected_actions(T_world_object)[np.minimum(np.arange(steps, steps + 8), NUM_FRAMES - 1)]
+        np.testing.assert_allclose(chunk[:, :3], expected[:, :3], atol=0.005)
+        np.testing.assert_array_equal(chunk[:, 7], expected[:, 7])
+    assert sampled and set(sampled) == {0.5}
 
 
 def test_padded_actions_hold_the_last_real_action():

@@ -1,40 +1,26 @@
 """``DemoReplayPolicy``: the classical baseline of the ``bullet_tabletop`` suite (issue 4, part 5).
 
 At the first ``select_action`` after ``reset()``, for every batch element: load (once per task) the
-demonstrations of its task, register each demonstration's first-frame cloud onto the current cloud, keep the
-demonstration that fits best (lowest ``fit_error``) and plan its actions moved by the estimated ``T_now_demo``:
-``T_world_ee_now = T_now_demo @ T_world_ee_demo`` for every commanded pose, gripper commands unchanged. Call ``k``
-returns planned action ``k``; after the last one the last action is repeated.
+demonstrations of its task and plan the replay of the one that fits the current cloud best
+(:func:`~..data.replay_plan.plan_replay`). Call ``k`` returns planned action ``k``; after the last one the last action
+is repeated.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
-from ..contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors, vectors_from_poses
+from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
-from ..geometry.registration import RegistrationResult, register_rigid
+from ..data.replay_plan import ReplayPlan, plan_replay
 from .configuration_demo_replay import DemoReplayConfig
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class ReplayPlan:
-    """The actions one env executes: ``actions (F, 8)`` in the world frame, from demonstration ``demo_index`` of
-    ``task`` moved by ``T_now_demo (4, 4)``; ``registration`` is the winning fit."""
-
-    task: str
-    demo_index: int
-    T_now_demo: np.ndarray
-    actions: np.ndarray
-    registration: RegistrationResult
 
 
 class DemoReplayPolicy(PreTrainedPolicy):
@@ -92,7 +78,7 @@ class DemoReplayPolicy(PreTrainedPolicy):
         return torch.from_numpy(action).to(batch[STATE_KEY].device)
 
     def _action_at(self, step: int) -> np.ndarray:
-        return np.stack([plan.actions[min(step, len(plan.actions) - 1)] for plan in self._plans]).astype(np.float32)
+        return np.stack([plan.actions_from(step, 1)[0] for plan in self._plans]).astype(np.float32)
 
     def _ensure_plans(self, batch: dict[str, Tensor]) -> None:
         if self._plans is not None:
@@ -120,23 +106,4 @@ class DemoReplayPolicy(PreTrainedPolicy):
 
     def _plan(self, task: str, cloud_now: np.ndarray) -> ReplayPlan:
         """Register every demonstration of ``task`` onto ``cloud_now (P, 3)``; plan the best one's actions."""
-        registration_config = self.config.registration_config()
-        fits = [
-            register_rigid(demo.points_world[0], cloud_now, registration_config)
-            for demo in self.demonstrations(task)
-        ]
-        best = int(np.argmin([fit.fit_error for fit in fits]))
-        T_now_demo = fits[best].T_target_source
-        actions = transform_pose_actions(T_now_demo, self.demonstrations(task)[best].action)
-        return ReplayPlan(task=task, demo_index=best, T_now_demo=T_now_demo, actions=actions, registration=fits[best])
-
-
-def transform_pose_actions(T_now_demo: np.ndarray, actions: np.ndarray) -> np.ndarray:
-    """Move absolute EE-pose actions ``(F, 8)`` (xyz, quaternion xyzw, gripper) by ``T_now_demo (4, 4)``.
-
-    Each commanded ``T_world_ee`` becomes ``T_now_demo @ T_world_ee``; the gripper command is kept. Quaternions
-    come out normalised with ``w >= 0``.
-    """
-    T_world_ee, gripper_open = poses_from_vectors(actions)
-    return vectors_from_poses(T_now_demo @ T_world_ee, gripper_open).astype(np.float32)
-
+        return plan_replay(task, self.demonstrations(task), cloud_now, self.config.registration_config())

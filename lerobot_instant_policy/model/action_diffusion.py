@@ -159,24 +159,42 @@ class ActionDiffusion:
         generator: torch.Generator | None = None,
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
+        initial: torch.Tensor | None = None,
+        strength: float = 1.0,
     ) -> torch.Tensor:
-        """DDIM from Gaussian noise to a clean diffusion variable ``(B, T, 7)``.
+        """DDIM to a clean diffusion variable ``(B, T, 7)``, from Gaussian noise or from a noised guess.
 
         Args:
             predict: ``(T_ee_actions (B, T, 4, 4), gripper (B, T) in [−1, 1], timesteps (B,)) → (B, T, G, 7)``, the
                 network's normalised flows and gripper predictions at each action keypoint.
             num_inference_steps: K, between 1 and ``num_train_timesteps``.
+            initial: ``(B, T, 7)``, a clean guess of the diffusion variable (e.g. :meth:`normalize` of demonstrated
+                actions replayed into the live scene), or None for the paper's start from pure noise.
+            strength: with ``initial``, the fraction of the K steps that run (SDEdit, Meng et al. 2022, as in
+                diffusers' image-to-image pipelines): the guess is noised by the forward process to the timestep of
+                the last ``⌈strength · K⌉`` steps and denoised through them only. 1: from almost pure noise (the
+                guess keeps ``√ᾱ`` of the first timestep); small: close to the guess.
         """
         if not 1 <= num_inference_steps <= self.num_train_timesteps:
             raise ValueError(
                 f"num_inference_steps must be in 1…{self.num_train_timesteps}, got {num_inference_steps}"
             )
+        if not 0.0 < strength <= 1.0:
+            raise ValueError(f"strength must lie in (0, 1], got {strength}")
+        shape = (batch_size, self.horizon, ACTION_DIM)
+        if initial is not None and tuple(initial.shape) != shape:
+            raise ValueError(f"initial must have shape (B, T, 7) = {shape}, got {tuple(initial.shape)}")
         noise_device = generator.device if generator is not None else device
-        sample = torch.randn(
-            batch_size, self.horizon, ACTION_DIM, generator=generator, device=noise_device, dtype=dtype
-        ).to(device).clamp(-1.0, 1.0)
+        noise = torch.randn(shape, generator=generator, device=noise_device, dtype=dtype).to(device)
         self.inference_scheduler.set_timesteps(num_inference_steps)
-        for timestep in self.inference_scheduler.timesteps.tolist():
+        timesteps = self.inference_scheduler.timesteps.tolist()
+        if initial is None:
+            sample = noise.clamp(-1.0, 1.0)
+        else:
+            timesteps = timesteps[num_inference_steps - math.ceil(strength * num_inference_steps):]
+            start = torch.full((batch_size,), timesteps[0], device=device, dtype=torch.long)
+            sample = self.add_noise(initial.to(device=device, dtype=dtype).clamp(-1.0, 1.0), noise, start)
+        for timestep in timesteps:
             T_noisy, gripper = self.unnormalize(sample)
             prediction = predict(T_noisy, gripper, torch.full((batch_size,), timestep, device=device))
             T_clean = self.predicted_clean_actions(T_noisy, prediction[..., :FLOW_DIM])

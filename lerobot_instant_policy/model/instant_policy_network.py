@@ -622,8 +622,11 @@ class InstantPolicyNetwork(nn.Module):
         context: InstantPolicyContext,
         generator: torch.Generator | None = None,
         num_inference_steps: int | None = None,
+        initial: torch.Tensor | None = None,
+        strength: float = 1.0,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """DDIM-sample the actions.
+        """DDIM-sample the actions, from pure noise or from a noised guess ``initial (B, T, 7)`` (the diffusion
+        variable of :meth:`ActionDiffusion.normalize`) with ``strength`` (:meth:`ActionDiffusion.sample`).
 
         Returns:
             ``T_ee_actions (B, T, 4, 4)``: action poses in the current EE frame; ``gripper_open (B, T)`` in {0, 1}.
@@ -637,6 +640,8 @@ class InstantPolicyNetwork(nn.Module):
                 generator=generator,
                 device=context.points_ee.device,
                 dtype=context.points_ee.dtype,
+                initial=initial,
+                strength=strength,
             )
         T_ee_actions, gripper = self.diffusion.unnormalize(sample)
         return T_ee_actions, (gripper > 0).to(sample.dtype)
