@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 
 from .configuration_bullet_tabletop import BulletTabletopEnvConfig
+from .metaworld import MetaworldPointCloudEnvConfig  # registers the metaworld_pointcloud env type (light)
 
 _LAZY = {
     "Task": "task_api",
@@ -29,7 +30,7 @@ _LAZY = {
     "EpisodeRecord": "rollout",
 }
 
-__all__ = ["BulletTabletopEnvConfig", *_LAZY]
+__all__ = ["BulletTabletopEnvConfig", "MetaworldPointCloudEnvConfig", *_LAZY]
 
 
 def __getattr__(name: str):

@@ -1,0 +1,126 @@
+"""``MetaworldPointCloudEnvConfig``: LeRobot's ``metaworld`` env config with the data contract, registered as
+``metaworld_pointcloud``.
+
+``lerobot-eval --env.type=metaworld_pointcloud --env.task=pick-place-v3`` builds ``eval.batch_size`` envs of the
+task (``env.MetaworldPointCloudEnv``, a subclass of LeRobot's ``MetaworldEnv``). LeRobot turns the env observations
+``pointcloud``, ``agent_pos`` and ``environment_state`` into ``observation.pointcloud (B, P, 3)``,
+``observation.state (B, 8)`` and ``observation.environment_state (B, 39)``; the action is ``(8,)``, an absolute EE
+target. ``--env.task`` takes a task, a comma-separated list, ``mt10`` (MetaWorld's MT10 tasks) or one of LeRobot's
+difficulty groups (``easy``, ``medium``, ``hard``, ``very_hard``); each task is a task group of its own in
+``eval_info.json``.
+
+Why a config subclass registered under a new type and not the ``metaworld`` type itself: the subclass keeps
+LeRobot's fields and their meaning (``task``, ``fps``, ``episode_length``, the difficulty groups) and builds
+LeRobot's env underneath, while the new name leaves ``--env.type=metaworld`` as LeRobot ships it (pixel
+observations, 4-D actions) for the policies that read pixels; a type cannot be registered twice.
+
+This module stays light: MetaWorld and MuJoCo are imported only when envs are created, so the base install
+(``make demo``) registers the type without the ``metaworld`` extra.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import partial
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.envs.configs import MetaworldEnv as LeRobotMetaworldConfig
+
+from ...contract import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
+
+ENVIRONMENT_STATE_KEY = "observation.environment_state"
+MT10_TASKS = (
+    "reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
+    "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3",
+)  # metaworld.env_dict.MT10_V3, written out so that the config does not import MetaWorld
+
+
+def make_metaworld_pointcloud_env(task: str, **env_kwargs):
+    """One ``MetaworldPointCloudEnv`` (a picklable factory for gymnasium's vector envs)."""
+    from .cameras import CameraSettings
+    from .env import MetaworldPointCloudEnv
+
+    cameras = CameraSettings(tuple(env_kwargs.pop("cameras")), env_kwargs.pop("camera_resolution"))
+    return MetaworldPointCloudEnv(task, cameras=cameras, **env_kwargs)
+
+
+def resolve_tasks(task: str) -> list[str]:
+    """``task`` → MetaWorld task names: ``mt10``, LeRobot's difficulty groups, or comma-separated names (the
+    ``metaworld-`` prefix dropped); unknown names raise ``ValueError`` listing the groups. Needs the extra."""
+    from .dependencies import import_metaworld
+
+    import_metaworld()  # before LeRobot's metaworld module imports mujoco
+    from lerobot.envs.metaworld import DIFFICULTY_TO_TASKS, TASK_POLICY_MAPPING
+
+    names = []
+    for item in (part.strip() for part in task.split(",") if part.strip()):
+        if item == "mt10":
+            names += MT10_TASKS
+        elif item in DIFFICULTY_TO_TASKS:
+            names += DIFFICULTY_TO_TASKS[item]
+        else:
+            name = item.removeprefix("metaworld-")
+            if name not in TASK_POLICY_MAPPING:
+                raise ValueError(f"unknown MetaWorld task {item!r}: give v3 task names (e.g. pick-place-v3), mt10 or "
+                                 f"one of {sorted(DIFFICULTY_TO_TASKS)}")
+            names.append(name)
+    if not names:
+        raise ValueError("metaworld_pointcloud needs --env.task (a task name, mt10 or a difficulty group)")
+    return list(dict.fromkeys(names))
+
+
+@EnvConfig.register_subclass("metaworld_pointcloud")
+@dataclass
+class MetaworldPointCloudEnvConfig(LeRobotMetaworldConfig):
+    """MetaWorld tasks with the data contract's observations and actions (module docstring).
+
+    ``num_points``: points per cloud (the shipped checkpoint's 2048). ``cameras``: MetaWorld camera names the cloud
+    is fused from; ``camera_resolution``: their square image size in pixels. ``episode_length``: the step limit
+    (MetaWorld's own is 500).
+    """
+
+    task: str = "pick-place-v3"
+    episode_length: int = 200
+    num_points: int = NUM_POINTS
+    cameras: list[str] = field(default_factory=lambda: ["corner2", "corner", "behindGripper"])
+    camera_resolution: int = 320
+    features: dict[str, PolicyFeature] = field(default_factory=dict)
+    features_map: dict[str, str] = field(default_factory=lambda: {
+        ACTION_KEY: ACTION_KEY, "agent_pos": STATE_KEY, "pointcloud": POINTCLOUD_KEY,
+        "environment_state": ENVIRONMENT_STATE_KEY,
+    })
+
+    def __post_init__(self):
+        if self.num_points <= 0 or self.camera_resolution < 2 or not self.cameras:
+            raise ValueError("num_points must be positive, camera_resolution at least 2 and cameras not empty")
+        if not 0 < self.episode_length <= 500:
+            raise ValueError(f"episode_length must lie in 1…500 (MetaWorld's limit), got {self.episode_length}")
+        self.features = {
+            ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=POSE_GRIPPER_SHAPE),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=POSE_GRIPPER_SHAPE),
+            "pointcloud": PolicyFeature(type=FeatureType.STATE, shape=(self.num_points, 3)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(39,)),
+        }
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {"num_points": self.num_points, "episode_length": self.episode_length, "cameras": list(self.cameras),
+                "camera_resolution": self.camera_resolution}
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        import gymnasium as gym
+        from lerobot.envs.utils import freeze_after_episode_end
+
+        envs = {}
+        for task in resolve_tasks(self.task):
+            factory = partial(make_metaworld_pointcloud_env, task, **self.gym_kwargs)
+            env_fns = [freeze_after_episode_end(factory) for _ in range(n_envs)]
+            if use_async_envs and n_envs > 1:
+                vector_env = gym.vector.AsyncVectorEnv(
+                    env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="forkserver"
+                )
+            else:
+                vector_env = gym.vector.SyncVectorEnv(env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+            envs[task] = {0: vector_env}
+        return envs

@@ -1,0 +1,122 @@
+"""``MetaworldPointCloudEnv``: LeRobot's own ``MetaworldEnv`` with the data contract's observations and actions.
+
+It subclasses ``lerobot.envs.metaworld.MetaworldEnv`` (LeRobot builds the MetaWorld task, seeds its resets, reports
+``info["is_success"]`` from MetaWorld's ``info["success"]`` and renders the RGB frames of LeRobot's videos) and
+changes what goes in and out:
+
+* observation ``pointcloud (num_points, 3)`` float32, world frame: the task objects and the task's goal markers
+  seen by MuJoCo depth + segmentation cameras (:mod:`.cameras`); ``agent_pos (8,)`` float32: the EE pose and the
+  gripper state (the last gripper command, 1 open, 0 closed; open at reset), :mod:`.actions`; ``environment_state
+  (39,)`` float32: MetaWorld's own state vector (hand, fingers, object poses, goal), privileged, read only by the
+  scripted expert (``metaworld_expert``). The 480x480 RGB frame LeRobot's env renders for its ``pixels``
+  observation is not rendered; ``render()`` still draws it for the videos (without shadows: osmesa draws
+  MetaWorld's 4096² shadow map in software, 2.3x the frame's time here).
+* action ``(8,)``: the absolute EE target of the data contract, mapped to MetaWorld's 4-D action (:mod:`.actions`;
+  ``info["metaworld_action"]`` is the 4-D action sent).
+* ``task_description`` is the task name (``pick-place-v3``): policies find their demonstrations by it.
+* episodes end at ``episode_length`` steps (MetaWorld's limit is 500) or at MetaWorld's success.
+
+Goals: MetaWorld hides the goal of ``reach``, ``push``, ``pick-place`` … from a camera-only policy unless it is
+drawn; the cloud keeps the task's target sites (the spheres MetaWorld draws at ``_target_site_config``), so every
+goal is a small marker object in the cloud and moves with MetaWorld's randomisation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from .dependencies import import_metaworld
+
+import_metaworld()  # sets MUJOCO_GL and checks the extra before mujoco is imported
+
+from lerobot.envs.metaworld import MetaworldEnv  # noqa: E402
+
+from ...contract import NUM_POINTS, POSE_GRIPPER_SHAPE  # noqa: E402
+from .actions import ee_state, metaworld_action  # noqa: E402
+from .cameras import CameraSettings, SegmentedDepthCameras  # noqa: E402
+
+ENVIRONMENT_STATE_SHAPE = (39,)
+VIDEO_CAMERA = "corner2"  # LeRobot's camera for MetaWorld, moved by LeRobot to face the table
+
+
+class MetaworldPointCloudEnv(MetaworldEnv):
+    """One MetaWorld v3 task (``reach-v3`` …) with point-cloud observations and EE-target actions (module docstring).
+
+    Args:
+        task: a MetaWorld v3 task name (``metaworld-`` prefix allowed).
+        num_points: points per cloud.
+        episode_length: step limit, at most MetaWorld's 500.
+        cameras: the cameras and resolution of the cloud.
+    """
+
+    def __init__(self, task: str, num_points: int = NUM_POINTS, episode_length: int = 200,
+                 cameras: CameraSettings | None = None):
+        super().__init__(task=task, camera_name=VIDEO_CAMERA, obs_type="pixels", render_mode="rgb_array")
+        if not 0 < episode_length <= 500:
+            raise ValueError(f"episode_length must lie in 1…500 (MetaWorld's limit), got {episode_length}")
+        self.num_points = num_points
+        self.camera_settings = cameras or CameraSettings()
+        self.task_description = self.task
+        self._max_episode_steps = episode_length
+        self._cameras: SegmentedDepthCameras | None = None
+        self._gripper_open = True
+        self._cloud_rng = np.random.default_rng(0)
+        pose = spaces.Box(-np.inf, np.inf, shape=POSE_GRIPPER_SHAPE, dtype=np.float32)
+        self.observation_space = spaces.Dict({
+            "pointcloud": spaces.Box(-np.inf, np.inf, shape=(num_points, 3), dtype=np.float32),
+            "agent_pos": pose,
+            "environment_state": spaces.Box(-np.inf, np.inf, shape=ENVIRONMENT_STATE_SHAPE, dtype=np.float32),
+        })
+        self.action_space = spaces.Box(-np.inf, np.inf, shape=POSE_GRIPPER_SHAPE, dtype=np.float32)
+
+    @property
+    def metaworld_env(self):
+        """The MetaWorld ``SawyerXYZEnv`` underneath (built on first use)."""
+        self._ensure_env()
+        return self._env
+
+    def _ensure_env(self) -> None:
+        if self._env is not None:
+            return
+        super()._ensure_env()
+        self._env.model.light_castshadow[:] = 0  # videos without shadows (module docstring)
+        target_sites = tuple(name for name, _ in self._env._target_site_config)
+        self._cameras = SegmentedDepthCameras(self._env.model, self.camera_settings, target_sites)
+
+    def ee_state(self) -> np.ndarray:
+        """``agent_pos (8,)``: the EE pose now (``tcp_center``, hand orientation) and the gripper state."""
+        env = self.metaworld_env
+        return ee_state(env.data.body("hand").xmat, env.tcp_center, self._gripper_open)
+
+    def reset(self, seed: int | None = None, **kwargs):
+        self._gripper_open = True
+        if seed is not None:
+            self._cloud_rng = np.random.default_rng(seed)
+        return super().reset(seed=seed, **kwargs)
+
+    def step(self, action: np.ndarray):
+        env = self.metaworld_env
+        command = metaworld_action(action, env.tcp_center, env.action_scale)
+        self._gripper_open = bool(np.asarray(action)[7] >= 0.5)
+        observation, reward, terminated, truncated, info = super().step(command)
+        truncated = truncated or (not terminated and env.curr_path_length >= self._max_episode_steps)
+        info["metaworld_action"] = command
+        return observation, reward, terminated, truncated, info
+
+    def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, np.ndarray]:
+        # MetaWorld places its goal sites after every step but not at reset, where they stay at the last episode's
+        # goals until the first step: place them as its step does before the cameras draw them.
+        for site, position in self._env._target_site_config:
+            self._env._set_pos_site(site, position)
+        return {
+            "pointcloud": self._cameras.cloud(self._env.data, self.num_points, self._cloud_rng),
+            "agent_pos": self.ee_state(),
+            "environment_state": np.asarray(raw_obs, dtype=np.float32),
+        }
+
+    def close(self) -> None:
+        if self._cameras is not None:
+            self._cameras.close()
+            self._cameras = None
+        super().close()
