@@ -46,11 +46,12 @@ def metaworld_action(target: np.ndarray, ee_position: np.ndarray, action_scale: 
 def ee_target(action: np.ndarray, ee_state: np.ndarray, action_scale: float) -> np.ndarray:
     """MetaWorld's ``action (4,)`` → the absolute target ``(8,)`` float32 that :func:`metaworld_action` maps back
     to it, from ``ee_state (8,)`` (the current EE pose and gripper): position ``ee_xyz + clip(action[:3]) ·
-    action_scale``, the current orientation, gripper open (1) for a command below 0, closed (0) otherwise."""
+    action_scale``, the current orientation, gripper closed (0) for a command above 0, open (1) otherwise (the
+    experts command 0 for "not gripping" and 0.1…1 for grips of several strengths, all mapped to +1)."""
     action = np.asarray(action, dtype=np.float64)
     target = np.array(ee_state, dtype=np.float64)
     target[:3] += np.clip(action[:3], -1.0, 1.0) * action_scale
-    target[7] = 1.0 if action[3] < 0 else 0.0
+    target[7] = 0.0 if action[3] > 0 else 1.0
     return target.astype(np.float32)
 
 

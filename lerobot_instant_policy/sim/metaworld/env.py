@@ -16,6 +16,13 @@ changes what goes in and out:
 * ``task_description`` is the task name (``pick-place-v3``): policies find their demonstrations by it.
 * episodes end at ``episode_length`` steps (MetaWorld's limit is 500) or at MetaWorld's success.
 
+Rendering only where a policy looks: with ``pointcloud_every = k`` the cloud is rendered at reset, after every k-th
+step since the last rendering and after every step whose gripper command differs from the one before; otherwise
+the observation repeats the last cloud (``info["pointcloud_rendered"]`` says which). These are exactly the steps at
+which ``instant_policy`` reads an observation when k is its ``n_action_steps`` (it runs k queued actions, and
+predicts again after an action that changes the gripper command); ``demo_replay`` reads the first only, and
+``do_nothing`` and ``metaworld_expert`` never read the cloud. ``k = 1`` (the default) renders every step.
+
 Goals: MetaWorld hides the goal of ``reach``, ``push``, ``pick-place`` … from a camera-only policy unless it is
 drawn; the cloud keeps the task's target sites (the spheres MetaWorld draws at ``_target_site_config``), so every
 goal is a small marker object in the cloud and moves with MetaWorld's randomisation.
@@ -48,14 +55,21 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         num_points: points per cloud.
         episode_length: step limit, at most MetaWorld's 500.
         cameras: the cameras and resolution of the cloud.
+        pointcloud_every: render the cloud every this many steps, and after gripper changes (module docstring).
     """
 
     def __init__(self, task: str, num_points: int = NUM_POINTS, episode_length: int = 200,
-                 cameras: CameraSettings | None = None):
+                 cameras: CameraSettings | None = None, pointcloud_every: int = 1):
         super().__init__(task=task, camera_name=VIDEO_CAMERA, obs_type="pixels", render_mode="rgb_array")
         if not 0 < episode_length <= 500:
             raise ValueError(f"episode_length must lie in 1…500 (MetaWorld's limit), got {episode_length}")
+        if pointcloud_every < 1:
+            raise ValueError(f"pointcloud_every must be at least 1, got {pointcloud_every}")
         self.num_points = num_points
+        self.pointcloud_every = pointcloud_every
+        self._cloud: np.ndarray | None = None  # the last rendered cloud (None: render at the next observation)
+        self._cloud_due = False
+        self._steps_since_cloud = 0
         self.camera_settings = cameras or CameraSettings()
         self.task_description = self.task
         self._max_episode_steps = episode_length
@@ -91,6 +105,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
 
     def reset(self, seed: int | None = None, **kwargs):
         self._gripper_open = True
+        self._cloud = None
         if seed is not None:
             self._cloud_rng = np.random.default_rng(seed)
         return super().reset(seed=seed, **kwargs)
@@ -98,10 +113,14 @@ class MetaworldPointCloudEnv(MetaworldEnv):
     def step(self, action: np.ndarray):
         env = self.metaworld_env
         command = metaworld_action(action, env.tcp_center, env.action_scale)
-        self._gripper_open = bool(np.asarray(action)[7] >= 0.5)
+        gripper_open = bool(np.asarray(action)[7] >= 0.5)
+        self._cloud_due = gripper_open != self._gripper_open or self._steps_since_cloud + 1 >= self.pointcloud_every
+        self._gripper_open = gripper_open
+        rendered = self._cloud_due
         observation, reward, terminated, truncated, info = super().step(command)
         truncated = truncated or (not terminated and env.curr_path_length >= self._max_episode_steps)
         info["metaworld_action"] = command
+        info["pointcloud_rendered"] = rendered
         return observation, reward, terminated, truncated, info
 
     def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, np.ndarray]:
@@ -109,8 +128,14 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         # goals until the first step: place them as its step does before the cameras draw them.
         for site, position in self._env._target_site_config:
             self._env._set_pos_site(site, position)
+        if self._cloud is None or self._cloud_due:
+            self._cloud = self._cameras.cloud(self._env.data, self.num_points, self._cloud_rng)
+            self._steps_since_cloud = 0
+        else:
+            self._steps_since_cloud += 1
+        self._cloud_due = False
         return {
-            "pointcloud": self._cameras.cloud(self._env.data, self.num_points, self._cloud_rng),
+            "pointcloud": self._cloud.copy(),
             "agent_pos": self.ee_state(),
             "environment_state": np.asarray(raw_obs, dtype=np.float32),
         }

@@ -1,0 +1,22 @@
+"""Pre/post-processors of ``metaworld_expert``: LeRobot's default steps (rename, batch, device, identity normalisation)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from lerobot.processor import PolicyAction, PolicyProcessorPipeline, make_default_pre_post_processors
+
+from .configuration_metaworld_expert import MetaworldExpertConfig
+
+
+def make_metaworld_expert_pre_post_processors(
+    config: MetaworldExpertConfig,
+    dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
+) -> tuple[
+    PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
+    PolicyProcessorPipeline[PolicyAction, PolicyAction],
+]:
+    """LeRobot's default pipelines; the config's ``normalization_mapping`` is IDENTITY, so values pass unchanged
+    (MetaWorld's state and the EE pose stay in metres, world frame)."""
+    return make_default_pre_post_processors(config, dataset_stats)
