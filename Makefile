@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-study eval-suite perception-eval test install clean
+.PHONY: demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-study eval-suite perception-eval eval-metaworld test install clean
 
 install: $(INSTALLED)
 
@@ -154,6 +154,23 @@ results-study: $(INSTALLED)
 	for L in 2 5 15; do $(STUDY) --policy-arg num_waypoints=$$L --run-name L$$L || exit 1; done
 	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,K1 K2 K4 K8 N1 N3 N4 L2 L5 L15,$(run)=outputs/results/study/runs/$(run)) \
 		--out docs/results_study
+
+# docs/metaworld.md (issue 31): the shipped checkpoint, demo_replay, do_nothing and MetaWorld's scripted expert in
+# LeRobot's MetaWorld env (--env.type=metaworld_pointcloud) on MT10, METAWORLD_EPISODES episodes per task, N=2 expert
+# demonstrations (seeds 0, 1), evaluation seeds from 1000, then the table. Needs the metaworld extra (in .[dev]) and
+# an OpenGL library for MuJoCo's offscreen rendering: libosmesa6 is installed with apt-get where it is missing.
+METAWORLD_EPISODES ?= 10
+METAWORLD = MUJOCO_GL=osmesa OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-metaworld --episodes $(METAWORLD_EPISODES) \
+	--out outputs/eval_metaworld
+eval-metaworld: $(INSTALLED)
+	@ldconfig -p | grep -q libOSMesa || apt-get install -y libosmesa6 || { echo "error: MuJoCo renders with OSMesa \
+	here (MUJOCO_GL=osmesa): install Debian's libosmesa6 (apt-get install libosmesa6, as root)"; exit 1; }
+	$(METAWORLD) --policy metaworld_expert
+	$(METAWORLD) --policy do_nothing
+	$(METAWORLD) --policy demo_replay
+	$(METAWORLD) --policy instant_policy --policy-path $(CKPT)
+	$(VENV)/bin/lerobot-ip-eval-table $(foreach policy,metaworld_expert do_nothing demo_replay instant_policy,\
+		$(policy)=outputs/eval_metaworld/runs/$(policy)) --out docs/results_metaworld
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)

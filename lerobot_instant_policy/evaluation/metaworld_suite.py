@@ -1,0 +1,129 @@
+"""The suite protocol of ``evaluation.suite`` on MetaWorld (``lerobot-ip-eval-metaworld``, ``make eval-metaworld``).
+
+For every task (default: MT10) and every demonstration set ``s = 0 … demo_sets − 1``:
+
+* ``num_demos`` demonstrations of MetaWorld's scripted expert are recorded on seeds from ``demo_seed +
+  DEMO_SET_STRIDE · s`` (``sim.metaworld.recording``; each set its own seeds, disjoint from the other sets' and from
+  every evaluation seed), kept between runs, for the policies that read demonstrations;
+* LeRobot's own ``lerobot-eval`` runs the policy in ``--env.type=metaworld_pointcloud`` for ``episodes`` episodes on
+  seeds ``eval_seed + episodes · s …``, so every policy meets the same scenes with the same demonstrations.
+
+Clouds are rendered every ``pointcloud_every`` steps and after gripper changes (8: the steps ``instant_policy`` reads;
+``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>``, ``runs/<name>/<task>/set-<s>`` (each
+``lerobot-eval`` output directory, with its videos); ``evaluation.success_table`` pools the sets per task.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..sim.metaworld.configuration_metaworld import MT10_TASKS
+from .suite import DEMO_SET_STRIDE, SuiteError, demo_root
+
+POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
+DEMONSTRATION_POLICIES = ("instant_policy", "demo_replay")
+ENV_TYPE = "metaworld_pointcloud"
+
+
+@dataclass(frozen=True)
+class MetaworldSuiteSettings:
+    """What one evaluation of a policy on MetaWorld tasks records, runs and where it writes (module docstring).
+    ``policy_args``: ``--policy.KEY=VALUE`` added to every ``lerobot-eval`` call."""
+
+    policy: str = "demo_replay"
+    policy_path: str | None = None
+    tasks: tuple[str, ...] = MT10_TASKS
+    out: Path = Path("outputs/eval_metaworld")
+    episodes: int = 10
+    demo_sets: int = 1
+    batch_size: int = 2
+    num_demos: int = 2
+    demo_seed: int = 0
+    eval_seed: int = 1000
+    episode_length: int = 200
+    pointcloud_every: int = 8
+    policy_args: tuple[str, ...] = ()
+
+    def validate(self) -> None:
+        if self.policy not in POLICIES:
+            raise SuiteError(f"policy must be one of {list(POLICIES)}, got {self.policy!r}")
+        if min(self.episodes, self.demo_sets, self.batch_size, self.num_demos, self.pointcloud_every) <= 0:
+            raise SuiteError("episodes, demo_sets, batch_size, num_demos and pointcloud_every must be positive")
+        if self.policy == "instant_policy" and not self.policy_path:
+            raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
+        if self.num_demos > DEMO_SET_STRIDE // 2:
+            raise SuiteError(f"num_demos must be at most {DEMO_SET_STRIDE // 2}")
+        last_demo_seed = self.demo_seed + DEMO_SET_STRIDE * self.demo_sets
+        last_eval_seed = self.eval_seed + self.episodes * self.demo_sets
+        if self.demo_seed < last_eval_seed and self.eval_seed < last_demo_seed:
+            raise SuiteError(f"demonstration seeds {self.demo_seed}…{last_demo_seed - 1} overlap evaluation seeds "
+                             f"{self.eval_seed}…{last_eval_seed - 1}: choose another demo_seed or eval_seed")
+
+    @property
+    def runs_dir(self) -> Path:
+        return self.out / "runs" / self.policy
+
+    def demo_seed_of(self, demo_set: int) -> int:
+        return self.demo_seed + DEMO_SET_STRIDE * demo_set
+
+    def eval_seed_of(self, demo_set: int) -> int:
+        return self.eval_seed + self.episodes * demo_set
+
+
+def lerobot_eval_command(settings: MetaworldSuiteSettings, task: str, demos: Path, eval_seed: int,
+                         output_dir: Path) -> list[str]:
+    """The ``lerobot-eval`` command line for one task and demonstration set."""
+    policy = f"--policy.path={settings.policy_path}" if settings.policy_path else f"--policy.type={settings.policy}"
+    command = [
+        str(Path(sys.executable).with_name("lerobot-eval")), f"--env.type={ENV_TYPE}", f"--env.task={task}",
+        f"--env.episode_length={settings.episode_length}", f"--env.pointcloud_every={settings.pointcloud_every}",
+        policy, f"--eval.n_episodes={settings.episodes}", f"--eval.batch_size={min(settings.batch_size, settings.episodes)}",
+        f"--seed={eval_seed}", f"--output_dir={output_dir}", "--policy.device=cpu",
+    ]
+    if settings.policy in DEMONSTRATION_POLICIES:
+        command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
+                    f"--policy.num_demos={settings.num_demos}"]
+    return command + list(settings.policy_args)
+
+
+def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0) -> Path:
+    """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them);
+    returns the ``lerobot-eval`` output directory."""
+    from ..sim.metaworld.recording import record_expert_demos
+
+    seed = settings.demo_seed_of(demo_set)
+    demos = demo_root(settings.out, task, settings.num_demos, seed)
+    if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
+        record_expert_demos(task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
+                            episode_length=settings.episode_length)
+    output_dir = settings.runs_dir / task / f"set-{demo_set}"
+    if output_dir.exists():
+        shutil.rmtree(output_dir)
+    command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
+    completed = subprocess.run(command, capture_output=True, text=True)
+    if completed.returncode != 0:
+        log = settings.runs_dir / f"{task}-set-{demo_set}.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text(completed.stdout + completed.stderr)
+        tail = "\n".join((completed.stdout + completed.stderr).strip().splitlines()[-15:])
+        raise SuiteError(f"lerobot-eval failed on {task}, set {demo_set} (exit {completed.returncode}; full log "
+                         f"{log}):\n{tail}")
+    return output_dir
+
+
+def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = print) -> list[Path]:
+    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories."""
+    settings.validate()
+    runs = []
+    for task in settings.tasks:
+        for demo_set in range(settings.demo_sets):
+            started = time.perf_counter()
+            runs.append(run_task(settings, task, demo_set))
+            report(f"{task}, set {demo_set}: evaluated in {time.perf_counter() - started:.0f} s -> {runs[-1]}")
+    return runs
