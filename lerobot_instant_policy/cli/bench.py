@@ -7,6 +7,8 @@ with one worker and with ``--workers``, and, on the same shards, LeRobot's seria
 parallel merge (in one process, and with a warm pool of ``--workers``), medians and ratios.
 ``lerobot-ip-bench encoder``: geometry-encoder clouds per second at 2048 points, batch 1 and 16, both presets.
 ``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
+``lerobot-ip-bench metaworld-env``: LeRobot's MetaWorld env (``metaworld_pointcloud``, the ``metaworld`` extra) steps
+per second with clouds every step and every ``--pointcloud-every`` steps, one cloud's time.
 ``lerobot-ip-bench inference --preset small|paper``: ``instant_policy`` milliseconds per control step (K=4, N=2,
 L=10, T=8, 2048 points, batch 1, demo context cached). ``lerobot-ip-bench train-step --preset small|paper``:
 training samples per second and peak RSS, with the frames' scene nodes read from frame encodings as
@@ -48,7 +50,7 @@ TRAIN_STEP_COMPARE_FLAGS = {
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lerobot-ip-bench", description="Benchmarks that print JSON.")
     commands = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_generate, _add_encoder, _add_env, _add_inference, _add_train_step, _add_data,
+    for add in (_add_generate, _add_encoder, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_data,
                 _add_lerobot_train):
         add(commands)
     return parser
@@ -114,6 +116,24 @@ def _run_env(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
     from ..benchmarks.env import bench_env
 
     return bench_env(args.task, args.steps, args.repeats)
+
+
+def _add_metaworld_env(commands) -> None:
+    env = commands.add_parser("metaworld-env", help="MetaWorld env steps per second with point-cloud observations")
+    env.add_argument("--task", default="pick-place-v3")
+    env.add_argument("--steps", type=int, default=40)
+    env.add_argument("--repeats", type=int, default=3)
+    env.add_argument("--pointcloud-every", type=int, default=8)
+    env.add_argument("--json", action="store_true", help=_JSON_HELP)
+    env.set_defaults(handler=_run_metaworld_env)
+
+
+def _run_metaworld_env(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    if min(args.steps, args.repeats, args.pointcloud_every) <= 0:
+        parser.error("--steps, --repeats and --pointcloud-every must be positive")
+    from ..benchmarks.metaworld import bench_metaworld_env
+
+    return bench_metaworld_env(args.task, args.steps, args.repeats, args.pointcloud_every)
 
 
 # ---------------------------------------------------------------------------------------------------- inference
