@@ -1,9 +1,12 @@
 """``lerobot-ip-record-demos``: scripted demonstrations of ``bullet_tabletop`` tasks as a LeRobotDataset
-(``sim.recording``).
+(``sim.recording``), or of MetaWorld tasks by MetaWorld's scripted experts (``--env metaworld``,
+``sim.metaworld.recording``; the ``metaworld`` extra).
 
     lerobot-ip-record-demos --list-tasks
     lerobot-ip-record-demos --task open_drawer --episodes 2 --out demos/open_drawer --repo-id local/open_drawer --seed 0
     lerobot-ip-record-demos --check --episodes 20 --json      # scripted vs do-nothing success table
+    lerobot-ip-record-demos --env metaworld --task pick-place-v3 --episodes 2 --out demos/pick-place-v3 \
+        --repo-id local/pick-place-v3 --seed 0
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ from ..sim.task_api import get_task, task_names
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="lerobot-ip-record-demos", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", choices=["bullet_tabletop", "metaworld"], default="bullet_tabletop",
+                        help="the simulator whose scripted demonstrator records (metaworld: its scripted experts)")
     parser.add_argument("--list-tasks", action="store_true", help="print the task names, one per line")
     parser.add_argument("--check", action="store_true", help="print scripted and do-nothing success per task")
     parser.add_argument("--task", help="task name (--check: a comma-separated list; default all)")
@@ -36,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-attempts", type=int, default=5, help="seeds tried per episode before giving up")
     parser.add_argument("--json", action="store_true", help="print JSON (--check, recording)")
     args = parser.parse_args(argv)
+    if args.env == "metaworld":
+        return _record_metaworld(parser, args)
     if args.list_tasks:
         if args.task_module:
             get_task(task_names()[0], args.task_module)
@@ -71,6 +78,26 @@ def main(argv: list[str] | None = None) -> int:
             obs_type=args.obs_type,
         )
     except (ValueError, FileExistsError, RuntimeError) as error:
+        print(f"lerobot-ip-record-demos: error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps(summary) if args.json else f"wrote {summary['episodes']} episodes of {args.task} to {args.out}")
+    return 0
+
+
+def _record_metaworld(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """``--env metaworld``: record MetaWorld's scripted expert of ``--task``."""
+    from ..sim.metaworld.dependencies import MetaworldSetupError
+    from ..sim.metaworld.recording import record_expert_demos
+
+    if args.list_tasks or args.check or args.with_images or args.obs_type != "pointcloud" or args.task_module:
+        parser.error("--env metaworld records segmented clouds of a task only (no --list-tasks, --check, "
+                     "--with-images, --obs-type or --task-module)")
+    if not (args.task and args.out and args.repo_id) or args.episodes <= 0:
+        parser.error("--env metaworld needs --task, --out, --repo-id and a positive --episodes")
+    try:
+        summary = record_expert_demos(args.task, args.episodes, args.out, args.repo_id, args.seed,
+                                      overwrite=args.overwrite, max_attempts=args.max_attempts)
+    except (ValueError, FileExistsError, RuntimeError, MetaworldSetupError) as error:
         print(f"lerobot-ip-record-demos: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(summary) if args.json else f"wrote {summary['episodes']} episodes of {args.task} to {args.out}")

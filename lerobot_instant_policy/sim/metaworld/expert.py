@@ -10,15 +10,15 @@ from .actions import ee_target
 
 
 def scripted_policy(task: str):
-    """A new instance of the scripted policy of MetaWorld v3 task ``task``; ``KeyError`` for an unknown task."""
+    """A new instance of the scripted policy of MetaWorld v3 task ``task``; ``ValueError`` for an unknown task."""
     from .dependencies import import_metaworld
 
     import_metaworld()
     from lerobot.envs.metaworld import TASK_POLICY_MAPPING
 
     if task not in TASK_POLICY_MAPPING:
-        raise KeyError(f"no MetaWorld scripted policy for task {task!r}: give a MetaWorld v3 task name such as "
-                       f"pick-place-v3")
+        raise ValueError(f"no MetaWorld scripted policy for task {task!r}: give a MetaWorld v3 task name such as "
+                         f"pick-place-v3")
     return TASK_POLICY_MAPPING[task]()
 
 

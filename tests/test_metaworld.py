@@ -1,0 +1,258 @@
+"""LeRobot's MetaWorld env with the data contract (issue 31): the action mapping, the segmented clouds, rendering
+only where a policy looks, expert demonstrations, one task end to end through lerobot-eval, and the setup errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "osmesa")  # as make eval-metaworld sets it, before anything imports mujoco
+
+from lerobot_instant_policy.sim.metaworld import dependencies  # noqa: E402
+from lerobot_instant_policy.sim.metaworld.actions import ee_target, metaworld_action  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+CHECKPOINT = REPO / "lerobot_instant_policy" / "assets" / "checkpoints" / "instant_policy"
+
+
+def _metaworld_or_skip():
+    """Skip (with the one-line reason) where the metaworld extra or the GL library cannot be had."""
+    try:
+        dependencies.import_metaworld()
+    except dependencies.MetaworldSetupError as error:
+        pytest.skip(str(error))
+
+
+@pytest.fixture(scope="module")
+def pick_place_env():
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
+
+    env = MetaworldPointCloudEnv("pick-place-v3")
+    yield env
+    env.close()
+
+
+# ------------------------------------------------------------------------------------------------ action mapping
+def test_target_within_one_step_maps_to_its_displacement_and_gripper():
+    ee = np.array([0.0, 0.6, 0.15])
+    target = np.array([0.004, 0.593, 0.16, 0.0, 1.0, 0.0, 0.0, 1.0])
+    action = metaworld_action(target, ee, 0.01)
+    np.testing.assert_allclose(action, [0.4, -0.7, 1.0, -1.0], atol=1e-6)  # gripper open -> MetaWorld's -1
+    target[7] = 0.0
+    assert metaworld_action(target, ee, 0.01)[3] == 1.0  # closed -> +1 (MetaWorld closes on +1)
+
+
+def test_far_target_is_clipped_to_metaworld_top_speed_and_quaternion_ignored():
+    ee = np.array([0.0, 0.6, 0.15])
+    far = np.array([0.3, 0.6, -0.2, 0.0, 0.0, 0.0, 1.0, 1.0])
+    turned = far.copy()
+    turned[3:7] = [0.0, 0.7071068, 0.0, 0.7071068]
+    np.testing.assert_allclose(metaworld_action(far, ee, 0.01), [1.0, 0.0, -1.0, -1.0])
+    np.testing.assert_array_equal(metaworld_action(far, ee, 0.01), metaworld_action(turned, ee, 0.01))
+
+
+def test_expert_action_round_trips_through_the_contract():
+    state = np.array([0.01, 0.62, 0.12, 0.0, 0.7071068, 0.0, 0.7071068, 1.0], dtype=np.float32)
+    for expert_action in ([0.3, -1.0, 0.25, 1.0], [-0.5, 0.2, 0.0, -1.0], [2.0, -3.0, 0.1, 0.6]):
+        target = ee_target(np.array(expert_action), state, 0.01)
+        assert target.shape == (8,) and target.dtype == np.float32
+        np.testing.assert_array_equal(target[3:7], state[3:7])
+        mapped = metaworld_action(target, state[:3], 0.01)
+        np.testing.assert_allclose(mapped[:3], np.clip(expert_action[:3], -1, 1), atol=1e-4)
+        assert mapped[3] == np.sign(expert_action[3])
+
+
+def test_expert_not_gripping_stays_open():
+    """MetaWorld's experts command 0 for "not gripping": that must open, not close, the gripper."""
+    state = np.array([0.0, 0.6, 0.15, 0.0, 0.7071068, 0.0, 0.7071068, 1.0], dtype=np.float32)
+    assert ee_target(np.array([0.1, 0.0, -0.2, 0.0]), state, 0.01)[7] == 1.0
+
+
+@pytest.mark.parametrize("bad", [np.zeros(4), np.full(8, np.nan)])
+def test_bad_targets_are_refused(bad):
+    with pytest.raises(ValueError, match=r"finite \(8,\) vector"):
+        metaworld_action(bad, np.zeros(3), 0.01)
+
+
+# ------------------------------------------------------------------------------------------------ setup errors
+def test_missing_extra_is_one_clear_line(monkeypatch):
+    import importlib
+
+    real_import = importlib.import_module
+
+    def without_metaworld(name, *args, **kwargs):
+        if name == "metaworld":
+            raise ImportError("No module named 'metaworld'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(dependencies, "check_mujoco_version", lambda: None)
+    monkeypatch.setattr(dependencies, "check_gl_library", lambda: None)
+    monkeypatch.setattr(dependencies.importlib, "import_module", without_metaworld)
+    with pytest.raises(dependencies.MetaworldSetupError, match=r"metaworld extra .*pip install -e '\.\[metaworld\]'"):
+        dependencies.import_metaworld()
+
+
+def test_mujoco_that_breaks_metaworld_reset_is_refused(monkeypatch):
+    monkeypatch.setattr(dependencies.importlib.metadata, "version", lambda name: "4.0.0")
+    with pytest.raises(dependencies.MetaworldSetupError, match=r"mujoco 4\.0\.0 breaks .*mujoco<3\.4"):
+        dependencies.check_mujoco_version()
+
+
+def test_missing_gl_library_names_the_package(monkeypatch):
+    monkeypatch.setenv("MUJOCO_GL", "osmesa")
+    monkeypatch.setattr(dependencies.ctypes.util, "find_library", lambda name: None)
+    with pytest.raises(dependencies.MetaworldSetupError, match="apt-get install libosmesa6"):
+        dependencies.check_gl_library()
+
+
+def test_base_install_registers_the_env_without_metaworld():
+    """make demo's path: importing the plugin registers metaworld_pointcloud and imports neither MetaWorld nor
+    MuJoCo."""
+    code = ("import sys, lerobot_instant_policy\nfrom lerobot.envs.configs import EnvConfig\n"
+            "config = EnvConfig.get_choice_class('metaworld_pointcloud')(task='mt10')\n"
+            "assert config.features['pointcloud'].shape == (2048, 3), config.features\n"
+            "print(sorted(name for name in ('metaworld', 'mujoco') if name in sys.modules))")
+    completed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True)
+    assert completed.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_unknown_task_is_refused_with_the_groups():
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import MT10_TASKS, resolve_tasks
+
+    assert resolve_tasks("mt10") == list(MT10_TASKS)
+    assert resolve_tasks("metaworld-reach-v3,push-v3") == ["reach-v3", "push-v3"]
+    with pytest.raises(ValueError, match="unknown MetaWorld task 'pick-v9'.*mt10"):
+        resolve_tasks("pick-v9")
+
+
+# ------------------------------------------------------------------------------------------------ observations
+def test_cloud_holds_the_task_objects_and_goal_marker_only(pick_place_env):
+    """Every kept point lies on the puck or on the goal marker: no robot, table, wall or floor point survives,
+    although the cameras see all of them."""
+    env = pick_place_env
+    observation, _ = env.reset(seed=5)
+    world = env.metaworld_env
+    puck, goal = world._get_pos_objects(), world._target_pos
+    depths, keeps = env._cameras.render(world.data)
+    seen = sum(int(np.count_nonzero(depth < 3.0)) for depth in depths)
+    kept = sum(int(keep.sum()) for keep in keeps)
+    assert kept < 0.05 * seen  # the robot and the scenery fill the images; they are dropped
+    points = env._cameras.points(world.data)
+    on_puck = np.linalg.norm(points - puck, axis=1) < 0.035
+    on_goal = np.linalg.norm(points - goal, axis=1) < 0.025
+    assert on_puck.sum() > 100 and on_goal.sum() > 20
+    assert np.all(on_puck | on_goal), points[~(on_puck | on_goal)][:5]
+    cloud = observation["pointcloud"]
+    assert cloud.shape == (2048, 3) and cloud.dtype == np.float32
+
+
+def test_state_is_the_contract_ee_pose(pick_place_env):
+    from scipy.spatial.transform import Rotation
+
+    env = pick_place_env
+    observation, _ = env.reset(seed=5)
+    state = observation["agent_pos"]
+    np.testing.assert_allclose(state[:3], env.metaworld_env.tcp_center, atol=1e-6)
+    axes = Rotation.from_quat(state[3:7]).as_matrix()
+    assert axes[2, 2] < -0.99  # z, the approach axis, points down
+    fingers = env.metaworld_env.data.site("leftEndEffector").xpos - env.metaworld_env.data.site("rightEndEffector").xpos
+    assert abs(np.dot(axes[:, 1], fingers / np.linalg.norm(fingers))) > 0.99  # y along the finger opening
+    assert state[7] == 1.0
+
+
+def test_env_moves_the_ee_to_the_target_and_grips(pick_place_env):
+    env = pick_place_env
+    observation, _ = env.reset(seed=5)
+    target = observation["agent_pos"].copy()
+    target[:3] += [0.005, -0.004, 0.003]
+    for _ in range(3):
+        observation, _, _, _, info = env.step(target)
+    np.testing.assert_allclose(observation["agent_pos"][:3], target[:3], atol=3e-3)
+    target[7] = 0.0
+    observation, _, _, _, info = env.step(target)
+    assert info["metaworld_action"][3] == 1.0 and observation["agent_pos"][7] == 0.0
+
+
+def test_cloud_is_rendered_on_the_steps_instant_policy_reads():
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
+
+    env = MetaworldPointCloudEnv("reach-v3", pointcloud_every=8)
+    try:
+        observation, _ = env.reset(seed=0)
+        rendered, clouds = [], [observation["pointcloud"]]
+        for step in range(24):
+            action = observation["agent_pos"].copy()
+            action[0] += 0.01
+            action[7] = 0.0 if step >= 12 else 1.0  # the gripper closes at step 12
+            observation, _, _, _, info = env.step(action)
+            rendered.append(info["pointcloud_rendered"])
+            clouds.append(observation["pointcloud"])
+    finally:
+        env.close()
+    assert [step for step, flag in enumerate(rendered) if flag] == [7, 12, 20]
+    np.testing.assert_array_equal(clouds[1], clouds[0])  # repeated between renderings
+
+
+def test_expert_solves_its_task_through_the_contract():
+    """MetaWorld's scripted expert, acting only through EE targets and the env's action mapping, succeeds."""
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
+    from lerobot_instant_policy.sim.metaworld.expert import expert_target, scripted_policy
+
+    env = MetaworldPointCloudEnv("pick-place-v3", pointcloud_every=500)
+    policy = scripted_policy("pick-place-v3")
+    try:
+        observation, _ = env.reset(seed=1000)
+        for _ in range(200):
+            action = expert_target(policy, observation["environment_state"], observation["agent_pos"], 0.01)
+            observation, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert info["is_success"]
+
+
+# ------------------------------------------------------------------------------------------------ end to end
+def test_expert_demonstrations_then_lerobot_eval_end_to_end(tmp_path):
+    """2 expert demonstrations recorded by lerobot-ip-record-demos, then the shipped instant_policy reads them in
+    2 evaluation episodes of lerobot-eval (with videos)."""
+    _metaworld_or_skip()
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.cli.record_demos import main as record_demos
+    from lerobot_instant_policy.data.demonstrations import load_demonstrations
+
+    demos = tmp_path / "demos"
+    assert record_demos(["--env", "metaworld", "--task", "reach-v3", "--episodes", "2", "--out", str(demos),
+                         "--repo-id", "local/reach-v3", "--seed", "0"]) == 0
+    dataset = LeRobotDataset("local/reach-v3", root=demos)
+    assert dataset.meta.total_episodes == 2 and list(dataset.meta.tasks.index) == ["reach-v3"]
+    demonstrations = load_demonstrations("local/reach-v3", demos, "reach-v3", 2)
+    for demo in demonstrations:
+        assert demo.points_world.shape[1:] == (2048, 3)
+        assert np.abs(demo.action[:, :3] - demo.state[:, :3]).max() <= 0.01 + 1e-5  # one MetaWorld step per frame
+
+    output_dir = tmp_path / "eval"
+    command = [str(Path(sys.executable).with_name("lerobot-eval")), "--env.type=metaworld_pointcloud",
+               "--env.task=reach-v3", "--env.episode_length=40", "--env.pointcloud_every=8",
+               f"--policy.path={CHECKPOINT}", "--policy.demo_repo_id=local/reach-v3", f"--policy.demo_root={demos}",
+               "--policy.num_demos=2", "--eval.n_episodes=2", "--eval.batch_size=2", "--eval.use_async_envs=false",
+               "--seed=1000",
+               f"--output_dir={output_dir}", "--policy.device=cpu"]
+    completed = subprocess.run(command, capture_output=True, text=True, cwd=REPO,
+                               env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    per_task = json.loads((output_dir / "eval_info.json").read_text())["per_task"]
+    assert [entry["task_group"] for entry in per_task] == ["reach-v3"]
+    assert len(per_task[0]["metrics"]["successes"]) == 2
+    assert len(list((output_dir / "videos").rglob("*.mp4"))) == 2
