@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 import roma
 import torch
@@ -11,8 +9,10 @@ from torch_geometric.nn import TransformerConv
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.model.dense_attention import dense_transformer_conv
-from lerobot_instant_policy.model.graph import ACTION_TO_ACTION, action_graph, dense_transform_attr, transform_attr
+from lerobot_instant_policy.model.dense_graphs import DenseGraphs, dense_transform_attr
+from lerobot_instant_policy.model.graph import ACTION_TO_ACTION
 from lerobot_instant_policy.model.instant_policy_network import DemoTensors, InstantPolicyNetwork
+from lerobot_instant_policy.model.sparse_graphs import SparseGraphs, action_graph, transform_attr
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -85,7 +85,9 @@ def test_network_dense_and_reference_paths_agree(context_scene_edges):
     T_ee_actions[..., :3, 3] *= 0.2
     results = []
     for dense in (True, False):
-        network.config = dataclasses.replace(config, dense_attention=dense)
+        graphs = DenseGraphs if dense else SparseGraphs
+        network.graphs = graphs(network.local_network, network.context_network, network.action_network,
+                                config.num_frequencies)
         network.zero_grad()
         demos = DemoTensors(demo_T, torch.ones(batch, num_demos, length),
                             *network.encode_observation(demo_points, demo_T))
@@ -120,7 +122,9 @@ def test_dense_context_network_is_the_reference_on_demo_and_current_nodes(num_de
     scene_features = torch.randn(batch, num_scene, feature_dim, generator=generator, requires_grad=True)
     results = []
     for dense in (True, False):
-        network.config = dataclasses.replace(config, dense_attention=dense)
+        graphs = DenseGraphs if dense else SparseGraphs
+        network.graphs = graphs(network.local_network, network.context_network, network.action_network,
+                                config.num_frequencies)
         out = network._context_features(T_world_ee, demo, current, scene_positions, scene_features)
         parameters = [*network.context_network.parameters(), *network.scene_projection.parameters()]
         grads = torch.autograd.grad(out.square().sum(), [demo, current, scene_features, *parameters],

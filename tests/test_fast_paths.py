@@ -12,6 +12,7 @@ from torch_geometric.nn import TransformerConv
 from lerobot_instant_policy.geometry.rigid_torch import fit_rigid
 from lerobot_instant_policy.model import graph_transformer
 from lerobot_instant_policy.model.dense_attention import dense_transformer_conv
+from lerobot_instant_policy.model.dense_graphs import dense_local_masks, dense_position_attr
 from lerobot_instant_policy.model.encodings import sinusoidal_encoding
 from lerobot_instant_policy.model.graph import (
     GRIPPER,
@@ -19,8 +20,6 @@ from lerobot_instant_policy.model.graph import (
     SCENE,
     SCENE_TO_GRIPPER,
     SCENE_TO_SCENE,
-    dense_local_masks,
-    dense_position_attr,
 )
 from lerobot_instant_policy.model.graph_transformer import HeteroGraphTransformer, fixed_weights
 from lerobot_instant_policy.model.point_ops import group_max

@@ -17,6 +17,8 @@ from lerobot_instant_policy.model.graph import (
     SCENE_TO_CURRENT,
     SCENE_TO_GRIPPER,
     SCENE_TO_SCENE,
+)
+from lerobot_instant_policy.model.sparse_graphs import (
     action_graph,
     context_graph,
     keypoint_offset_attr,

@@ -231,10 +231,10 @@ def test_loss_falls_when_overfitting_a_tiny_dataset(tiny_dataset):
 def test_a_policy_that_predicted_can_still_train(tiny_dataset, dense_attention):
     """Inference runs in torch's inference mode; the graph connectivity it builds and caches (per size) must still
     serve a training step of the same process."""
-    from lerobot_instant_policy.model import graph
+    from lerobot_instant_policy.model import dense_graphs, sparse_graphs
 
-    for cached in (graph.local_graph, graph.context_graph, graph.action_graph, graph.dense_local_masks,
-                   graph.dense_action_masks):
+    for cached in (sparse_graphs.local_graph, sparse_graphs.context_graph, sparse_graphs.action_graph,
+                   dense_graphs.dense_local_masks, dense_graphs.dense_action_masks):
         cached.cache_clear()  # built first by the prediction below
     torch.manual_seed(0)
     config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, max_demos=2, dense_attention=dense_attention)

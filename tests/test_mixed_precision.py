@@ -10,7 +10,7 @@ from test_instant_policy_network import _batch, _context, _network, _tiny_config
 
 from lerobot_instant_policy.geometry.rigid_torch import compose, full_precision, invert_rigid, transform_points
 from lerobot_instant_policy.model.action_diffusion import points_in_action_frames
-from lerobot_instant_policy.model.graph import dense_transform_attr
+from lerobot_instant_policy.model.dense_graphs import dense_transform_attr
 from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")

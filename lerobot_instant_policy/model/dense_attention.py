@@ -19,8 +19,8 @@ edge to every destination node.
 
 Every product is one batched matrix product: the scores are laid out ``(G, D, H, S)`` (softmax over the last axis),
 and the attributes are read destination-major, ``edge_attr.transpose(1, 2)`` ``(G, D, S, E)``, which costs no copy
-when they were built in that memory layout (:func:`~.graph.dense_position_attr` and
-:func:`~.graph.dense_transform_attr` do).
+when they were built in that memory layout (:func:`~.dense_graphs.dense_position_attr` and
+:func:`~.dense_graphs.dense_transform_attr` do).
 """
 
 from __future__ import annotations

@@ -5,10 +5,11 @@ value, query, key and edge projections), sums the results per destination node t
 applies ``LayerNorm(x + attention)`` and ``LayerNorm(h + MLP(h))`` per node type. Node types that receive no edge in
 a layer keep their features.
 
-``forward_dense`` runs the same layers on graphs whose every edge type joins all source nodes of a graph to all its
-destination nodes (σ's local graphs, ψ's graph; φ's graph through a :class:`~.graph.DenseLayout` per edge type that
-reads its node tensors as such graphs), in a dense batched layout (:mod:`.dense_attention`): the same weights and
-outputs, without PyG's scatter operations. There, all the convs' projections that read one node type (query and skip
+``forward`` runs the layers on torch_geometric edge lists (:mod:`.sparse_graphs`). ``forward_dense`` runs the same
+layers on graphs whose every edge type joins all source nodes of a graph to all its destination nodes (σ's local
+graphs, ψ's graph; φ's graph through a :class:`DenseLayout` per edge type that reads its node tensors as such graphs),
+in a dense batched layout (:mod:`.dense_attention`, :mod:`.dense_graphs`): the same weights and outputs, without
+PyG's scatter operations. There, all the convs' projections that read one node type (query and skip
 where it is the destination, key and value where it is the source) are one matrix product with their weights stacked,
 done once per row when every graph holds the same nodes (an input expanded along the graphs). After
 :meth:`HeteroGraphTransformer.compile_dense` the dense layers run through ``torch.compile`` wherever gradients are
@@ -26,11 +27,30 @@ from torch import nn
 from torch_geometric.nn import HeteroConv, TransformerConv
 
 from .dense_attention import dense_attention
-from .graph import DenseLayout, EdgeType
-
-_AS_GIVEN = DenseLayout()
+from .graph import EdgeType
 
 Projection = tuple[EdgeType, str]  # (edge type, "query" | "key" | "value" | "skip"): a conv's ``lin_<role>``
+
+
+class DenseLayout:
+    """How one edge type's ``G`` graphs of the dense layout are read from its node types' tensors: as they are,
+    ``(G, n, ·)`` (σ's local graphs, ψ's graph per sample); subclasses read other layouts (φ's, in
+    :mod:`.dense_graphs`)."""
+
+    def sources(self, x: torch.Tensor) -> torch.Tensor:
+        """The source node type's tensor → ``(G, S, ·)``."""
+        return x
+
+    def destinations(self, x: torch.Tensor) -> torch.Tensor:
+        """The destination node type's tensor → ``(G, D, ·)``."""
+        return x
+
+    def scatter(self, update: torch.Tensor, destination: torch.Tensor) -> torch.Tensor:
+        """The attention's ``(G, D, ·)`` → the layout of the destination node type's tensor ``destination``."""
+        return update
+
+
+_AS_GIVEN = DenseLayout()
 
 
 def projection_plan(edge_types: Iterable[EdgeType]) -> dict[str, list[Projection]]:
@@ -91,7 +111,7 @@ class HeteroGraphTransformerLayer(nn.Module):
         layout_dict: Mapping[EdgeType, DenseLayout] | None = None,
     ) -> dict[str, torch.Tensor]:
         """The layer on G complete graphs per edge type: ``x_dict`` node type → ``(G, n, H)``, or any ``(..., H)``
-        that the edge type's :class:`~.graph.DenseLayout` in ``layout_dict`` reads as ``(G, n, H)`` (absent: as
+        that the edge type's :class:`DenseLayout` in ``layout_dict`` reads as ``(G, n, H)`` (absent: as
         given); ``edge_attr_dict`` edge type → ``(G, n_src / r, n_dst, E)`` (:func:`~.dense_attention.dense_attention`),
         ``mask_dict`` edge type → ``(n_src, n_dst)`` bool or ``None`` (all edges)."""
         layout_dict = layout_dict or {}

@@ -32,39 +32,12 @@ from torch import nn
 
 from ..geometry.rigid_torch import full_precision, invert_rigid, transform_points
 from .action_diffusion import FLOW_DIM, ActionDiffusion, points_in_action_frames
+from .dense_graphs import DenseGraphs
 from .encodings import encoding_dim, sinusoidal_encoding
 from .geometry_encoder import GeometryEncoder
-from .graph import (
-    ACTION,
-    ACTION_TO_ACTION,
-    CURRENT,
-    CURRENT_TO_ACTION,
-    DEMO,
-    DEMO_TIME,
-    DEMO_TO_CURRENT,
-    GRIPPER,
-    GRIPPER_TO_GRIPPER,
-    SCENE,
-    SCENE_TO_CURRENT,
-    SCENE_TO_GRIPPER,
-    SCENE_TO_SCENE,
-    action_edge_dims,
-    action_graph,
-    context_edge_dims,
-    context_graph,
-    dense_action_masks,
-    dense_context_layouts,
-    dense_keypoint_offset_attr,
-    dense_local_masks,
-    dense_position_attr,
-    dense_transform_attr,
-    keypoint_offset_attr,
-    local_edge_dims,
-    local_graph,
-    position_attr,
-    transform_attr,
-)
+from .graph import ACTION, CURRENT, GRIPPER, StageGraphs, action_edge_dims, context_edge_dims, local_edge_dims
 from .graph_transformer import HeteroGraphTransformer, fixed_weights
+from .sparse_graphs import SparseGraphs
 
 if TYPE_CHECKING:  # the policy's config is handed in as it is (LeRobot's pattern); only its fields are read here
     from ..configuration_instant_policy import InstantPolicyConfig
@@ -155,6 +128,11 @@ class InstantPolicyNetwork(nn.Module):
             (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``, ``context_scene_edges``), and
             ``compile_model`` / ``compile_inference`` / ``compile_mode`` (σ, φ and ψ compiled for the training step,
             for sampling).
+
+    Attributes:
+        graphs: σ, φ and ψ (``local_network``, ``context_network``, ``action_network``) on their graphs
+            (:class:`~.graph.StageGraphs`): :class:`~.dense_graphs.DenseGraphs` with ``dense_attention``, else
+            :class:`~.sparse_graphs.SparseGraphs`; the same weights and outputs.
     """
 
     def __init__(self, config: InstantPolicyConfig):
@@ -185,6 +163,11 @@ class InstantPolicyNetwork(nn.Module):
         )
         self.action_network = HeteroGraphTransformer(
             action_edge_dims(config.num_frequencies), [ACTION], num_layers=config.action_layers, **stage
+        )
+        # σ, φ and ψ run in one of two layouts with the same weights and outputs: chosen once, here.
+        graphs = DenseGraphs if config.dense_attention else SparseGraphs
+        self.graphs: StageGraphs = graphs(
+            self.local_network, self.context_network, self.action_network, config.num_frequencies
         )
         self.translation_head = _head(hidden, 3)
         self.rotation_head = _head(hidden, 3)
@@ -274,49 +257,16 @@ class InstantPolicyNetwork(nn.Module):
     def _local_gripper_features(
         self, scene_positions: torch.Tensor, scene_features: torch.Tensor, gripper_features: torch.Tensor
     ) -> torch.Tensor:
-        """σ on R local graphs: scene ``(R, M, 3)``, ``(R, M, D)``, gripper ``(R, G, H)`` → gripper ``(R, G, H)``."""
-        if self.config.dense_attention:
-            return self._local_gripper_features_dense(scene_positions, scene_features, gripper_features)
-        num_graphs, num_scene = scene_positions.shape[:2]
-        graph = local_graph(num_graphs, num_scene, self.num_keypoints, scene_positions.device)
-        keypoints = self._keypoints(scene_positions)
-        scene_flat = scene_positions.reshape(-1, 3)
-        gripper_flat = keypoints.repeat(num_graphs, 1)
-        frequencies = self.config.num_frequencies
-        edge_attr = {
-            SCENE_TO_SCENE: position_attr(scene_flat, scene_flat, graph[SCENE_TO_SCENE].edge_index, frequencies),
-            SCENE_TO_GRIPPER: position_attr(scene_flat, gripper_flat, graph[SCENE_TO_GRIPPER].edge_index, frequencies),
-            GRIPPER_TO_GRIPPER: position_attr(
-                gripper_flat, gripper_flat, graph[GRIPPER_TO_GRIPPER].edge_index, frequencies
-            ),
-        }
-        x = {
-            SCENE: self.scene_projection(scene_features.reshape(-1, scene_features.shape[-1])),
-            GRIPPER: gripper_features.reshape(-1, gripper_features.shape[-1]),
-        }
-        out = self.local_network(x, graph.edge_index_dict, edge_attr)[GRIPPER]
-        return out.view(num_graphs, self.num_keypoints, -1)
-
-    def _local_gripper_features_dense(
-        self, scene_positions: torch.Tensor, scene_features: torch.Tensor, gripper_features: torch.Tensor
-    ) -> torch.Tensor:
-        """:meth:`_local_gripper_features` in the dense layout: attributes ``enc(p_dst − p_src)`` of every node pair
-        ``(G, n_src, n_dst, E)``, self pairs masked out, as in :func:`~.graph.local_graph`."""
-        keypoints = self._keypoints(scene_positions)
-        frequencies = self.config.num_frequencies
-        gripper_positions = keypoints.expand(len(scene_positions), -1, -1)
-        edge_attr = {
-            SCENE_TO_SCENE: dense_position_attr(scene_positions, scene_positions, frequencies),
-            SCENE_TO_GRIPPER: dense_position_attr(scene_positions, gripper_positions, frequencies),
-            GRIPPER_TO_GRIPPER: dense_position_attr(gripper_positions, gripper_positions, frequencies),
-        }
-        masks = dense_local_masks(scene_positions.shape[1], self.num_keypoints, scene_positions.device)
-        x = {SCENE: self._scene_nodes(scene_features), GRIPPER: gripper_features}
-        return self.local_network.forward_dense(x, edge_attr, masks)[GRIPPER]
+        """σ on R local graphs: scene nodes ``(R, M, 3)`` in each graph's EE frame, their encoder features
+        ``(R, M, D)``, gripper features ``(R, G, H)`` → gripper features ``(R, G, H)``."""
+        return self.graphs.local(
+            scene_positions, self._scene_nodes(scene_features), gripper_features, self._keypoints(scene_positions)
+        )
 
     def _scene_nodes(self, scene_features: torch.Tensor) -> torch.Tensor:
         """``scene_projection`` of ``(R, M, D)`` → ``(R, M, H)``. Features expanded along the graphs (one scene seen
-        from the T action frames at batch 1) are projected once and stay expanded, so σ projects them once too."""
+        from the T action frames at batch 1) are projected once and stay expanded, so the dense σ projects them once
+        too."""
         if scene_features.stride(0) == 0:
             return self.scene_projection(scene_features[:1]).expand(len(scene_features), -1, -1)
         return self.scene_projection(scene_features)
@@ -427,67 +377,9 @@ class InstantPolicyNetwork(nn.Module):
         ``(B, N, L, G, H)`` and current gripper nodes ``(B, G, H)`` after σ → the current gripper nodes ``(B, G, H)``.
         The live scene nodes ``(B, M, 3)`` (current EE frame), ``(B, M, D)`` are read only with
         ``context_scene_edges``."""
-        if self.config.dense_attention:
-            return self._context_features_dense(T_world_ee, demo_features, current_features, scene_positions,
-                                                scene_features)
-        batch, num_demos, demo_length = T_world_ee.shape[:3]
-        scene_edges = self.config.context_scene_edges
-        num_scene = scene_positions.shape[1] if scene_edges else 0
-        graph = context_graph(batch, num_demos, demo_length, self.num_keypoints, T_world_ee.device, num_scene)
+        live_scene = (scene_positions, self._scene_nodes(scene_features)) if self.config.context_scene_edges else None
         keypoints = self._keypoints(T_world_ee)
-        demo_frames = T_world_ee.reshape(-1, 4, 4)
-        frequencies = self.config.num_frequencies
-        edge_attr = {
-            DEMO_TIME: transform_attr(demo_frames, demo_frames, graph[DEMO_TIME], keypoints, frequencies),
-            DEMO_TO_CURRENT: keypoint_offset_attr(graph[DEMO_TO_CURRENT], keypoints, frequencies),
-        }
-        x = {
-            DEMO: demo_features.reshape(-1, demo_features.shape[-1]),
-            CURRENT: current_features.reshape(-1, current_features.shape[-1]),
-        }
-        if scene_edges:
-            edge_attr[SCENE_TO_CURRENT] = position_attr(
-                scene_positions.reshape(-1, 3), keypoints.repeat(batch, 1), graph[SCENE_TO_CURRENT].edge_index,
-                frequencies,
-            )
-            x[SCENE] = self.scene_projection(scene_features.reshape(-1, scene_features.shape[-1]))
-        current = self.context_network(x, graph.edge_index_dict, edge_attr)[CURRENT]
-        return current.view(batch, self.num_keypoints, -1)
-
-    def _context_features_dense(
-        self,
-        T_world_ee: torch.Tensor,
-        demo_features: torch.Tensor,
-        current_features: torch.Tensor,
-        scene_positions: torch.Tensor,
-        scene_features: torch.Tensor,
-    ) -> torch.Tensor:
-        """:meth:`_context_features` in the dense layout (:func:`~.graph.dense_context_layouts`): the time edges
-        ``l + 1 → l`` carry ``[enc(t), enc(R k − k)]`` of ``T_l+1,l`` once per source waypoint
-        (:func:`~.graph.dense_transform_attr` on the ``B · N · (L − 1)`` waypoint pairs), the demo → current edges
-        ``enc(k_dst − k_src)`` (:func:`~.graph.dense_keypoint_offset_attr`), the scene → current edges
-        ``enc(k − p)`` (:func:`~.graph.dense_position_attr`)."""
-        batch, num_demos, demo_length = T_world_ee.shape[:3]
-        keypoints = self._keypoints(T_world_ee)
-        frequencies = self.config.num_frequencies
-        edge_attr = {
-            DEMO_TIME: dense_transform_attr(
-                T_world_ee[:, :, 1:].reshape(-1, 1, 4, 4), T_world_ee[:, :, :-1].reshape(-1, 1, 4, 4), keypoints,
-                frequencies,
-            ),
-            DEMO_TO_CURRENT: dense_keypoint_offset_attr(keypoints, num_demos * demo_length, frequencies).expand(
-                batch, -1, -1, -1
-            ),
-        }
-        masks = {DEMO_TIME: None, DEMO_TO_CURRENT: None}
-        x = {DEMO: demo_features, CURRENT: current_features}
-        if self.config.context_scene_edges:
-            edge_attr[SCENE_TO_CURRENT] = dense_position_attr(
-                scene_positions, keypoints.expand(batch, -1, -1), frequencies
-            )
-            masks[SCENE_TO_CURRENT] = None
-            x[SCENE] = self._scene_nodes(scene_features)
-        return self.context_network.forward_dense(x, edge_attr, masks, dense_context_layouts())[CURRENT]
+        return self.graphs.context(T_world_ee, demo_features, current_features, live_scene, keypoints)
 
     # ------------------------------------------------------------------ action part (every denoising step)
     def denoise(
@@ -522,43 +414,13 @@ class InstantPolicyNetwork(nn.Module):
                 scene_features = context.scene_features[:, None].expand(-1, horizon, -1, -1)
             gripper_features = self._local_gripper_features(
                 scene_positions.flatten(0, 1), scene_features.flatten(0, 1), gripper_features.flatten(0, 1)
-            )
-        gripper_features = gripper_features.reshape(batch, horizon * self.num_keypoints, -1)
-        actions = self._action_features(context, T_ee_actions, gripper_features)
+            ).unflatten(0, (batch, horizon))
+        actions = self.graphs.actions(
+            T_ee_actions, context.current_gripper_features, gripper_features, self._keypoints(T_ee_actions)
+        )
         out = torch.cat([self.translation_head(actions), self.rotation_head(actions), self.gripper_head(actions)], -1)
         # float32 even when the layers ran under autocast: the diffusion's geometry is done in full precision.
-        return out.view(batch, horizon, self.num_keypoints, FLOW_DIM + 1).float()
-
-    def _action_features(
-        self, context: InstantPolicyContext, T_ee_actions: torch.Tensor, gripper_features: torch.Tensor
-    ) -> torch.Tensor:
-        """ψ: current and action gripper nodes ``(B, T · G, H)`` after σ, action frames ``(B, T, 4, 4)`` in the EE
-        frame → the action gripper nodes' features ``(B · T · G, H)``."""
-        batch, horizon = T_ee_actions.shape[:2]
-        keypoints = self._keypoints(T_ee_actions)
-        frequencies = self.config.num_frequencies
-        current_frames = torch.eye(4, dtype=T_ee_actions.dtype, device=T_ee_actions.device).expand(batch, 1, 4, 4)
-        if self.config.dense_attention:
-            edge_attr = {
-                CURRENT_TO_ACTION: dense_transform_attr(current_frames, T_ee_actions, keypoints, frequencies),
-                ACTION_TO_ACTION: dense_transform_attr(T_ee_actions, T_ee_actions, keypoints, frequencies),
-            }
-            masks = dense_action_masks(horizon, self.num_keypoints, T_ee_actions.device)
-            x = {CURRENT: context.current_gripper_features, ACTION: gripper_features}
-            return self.action_network.forward_dense(x, edge_attr, masks)[ACTION].reshape(-1, gripper_features.shape[-1])
-        graph = action_graph(batch, horizon, self.num_keypoints, T_ee_actions.device)
-        action_frames = T_ee_actions.reshape(-1, 4, 4)
-        edge_attr = {
-            CURRENT_TO_ACTION: transform_attr(
-                current_frames[:, 0], action_frames, graph[CURRENT_TO_ACTION], keypoints, frequencies
-            ),
-            ACTION_TO_ACTION: transform_attr(action_frames, action_frames, graph[ACTION_TO_ACTION], keypoints, frequencies),
-        }
-        x = {
-            CURRENT: context.current_gripper_features.reshape(-1, gripper_features.shape[-1]),
-            ACTION: gripper_features.reshape(-1, gripper_features.shape[-1]),
-        }
-        return self.action_network(x, graph.edge_index_dict, edge_attr)[ACTION]
+        return out.float()
 
     def training_loss(
         self,
