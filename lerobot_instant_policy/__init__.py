@@ -2,14 +2,15 @@
 
 Ground floor: ``contract`` (the LeRobot feature keys and the one codec of the 8-number pose + gripper vector) and
 ``geometry`` (SE(3) in numpy and torch, point sampling, registration). On it: ``data`` (LeRobot dataset I/O,
-demonstrations, waypoints, the context bank, action chunks; pure data), ``pseudo_demos`` (object library,
-pseudo-tasks, trajectories, rendering, generation, shard merging, preview), ``model`` (geometry encoder, graph,
-σ / φ / ψ transformers, action diffusion; no LeRobot), ``perception`` (depth → segmented clouds for real robots) and
-``sim`` (the ``bullet_tabletop`` env). Then the policy (``configuration_instant_policy``, ``modeling_instant_policy``,
-``processor_instant_policy``, ``context_encoder``, ``frame_encodings``, ``policy_features``), ``baselines``
+demonstrations, waypoints, the context bank, action chunks, replay plans; pure data), ``objects`` (the object
+library and the segmented-cloud renderer), ``pseudo_demos`` (pseudo-tasks, trajectories, generation, shard merging,
+preview), ``model`` (geometry encoder, graph, σ / φ / ψ transformers, action diffusion; no LeRobot), ``perception``
+(depth → segmented clouds for real robots) and ``sim`` (the ``bullet_tabletop`` env). Then the policy: the LeRobot
+trio at this root (``configuration_instant_policy``, ``modeling_instant_policy``, ``processor_instant_policy``) and
+what it is built from in ``policy`` (features, optimizer, frame encodings, context encoder); ``baselines``
 (``demo_replay``, ``do_nothing``), ``pretraining`` (the geometry encoder's occupancy pretraining), ``evaluation``
-(offline action error and loss curves) and ``cli`` (the ``lerobot-ip-*`` commands). Nothing low imports anything
-high.
+(offline action error, loss curves, the suite), ``orchestration`` (``lerobot-train`` in rounds) and ``cli`` (the
+``lerobot-ip-*`` commands: parsers). Nothing low imports anything high.
 """
 
 __version__ = "0.1.0"

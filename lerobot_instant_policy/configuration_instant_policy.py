@@ -26,16 +26,17 @@ from .geometry.gripper import GRIPPER_KEYPOINTS
 from .model.action_diffusion import LOSS_WEIGHTINGS
 from .model.geometry_encoder import GeometryEncoderConfig, encoder_preset
 from .model.instant_policy_network import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS
-from .optimizer import InstantPolicyAdamWConfig
-from .policy_features import (
+from .policy.features import (
     check_policy_features,
     contract_input_features,
     contract_output_features,
     identity_normalization,
 )
+from .policy.optimizer import InstantPolicyAdamWConfig
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
+SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "checkpoints" / "instant_policy"  # the pretrained_model these defaults describe
 
 # T and K the network is built for (N and L: the network's SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS).
 SUPPORTED_HORIZON = (1, 32)
@@ -160,7 +161,9 @@ class InstantPolicyConfig(PreTrainedConfig):
     :func:`~.data.replay_plan.plan_replay`, yaw-only trimmed ICP) and the best fit's actions, moved by the estimated
     motion, become the plan; each prediction takes the plan's next ``horizon`` actions from the episode's step count,
     noises them to the timestep of the last ⌈s·K⌉ of the K DDIM steps and runs only those (SDEdit). ``None`` (shipped):
-    the paper's path, pure noise, the demonstrations read through the graph alone.
+    the paper's path, pure noise, the demonstrations read through the graph alone. ``replay_per_object``: plan the
+    replay per object (the grasp follows the grasped object, the release the other one) where two objects move
+    independently, as ``demo_replay``'s ``registration_per_object``.
     """
 
     preset: str = "small"
@@ -214,6 +217,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     n_action_steps: int = 8
     replan_on_gripper_change: bool = True
     replay_init_strength: float | None = None
+    replay_per_object: bool = False
 
     push_to_hub: bool = False
 

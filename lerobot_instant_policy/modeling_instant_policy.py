@@ -33,17 +33,17 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
 from .configuration_instant_policy import InstantPolicyConfig
-from .context_encoder import ContextEncoder
 from .contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch, vectors_from_poses_torch
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
 from .data.replay_plan import ReplayPlan, plan_replay
-from .frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
 from .geometry.registration import RegistrationConfig
 from .geometry.rigid_torch import compose, invert_rigid
 from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
 from .model.occupancy import load_geometry_encoder
+from .policy.context_encoder import ContextEncoder
+from .policy.frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
 
 logger = logging.getLogger(__name__)
 
@@ -254,7 +254,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             clouds = points_world.detach().cpu().numpy()
             registration = RegistrationConfig(yaw_only=True)
             self._replay_plans = [
-                plan_replay(task, self._demonstrations.get(task), cloud, registration)
+                plan_replay(task, self._demonstrations.get(task), cloud, registration, self.config.replay_per_object)
                 for task, cloud in zip(tasks, clouds, strict=True)
             ]
         planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lerobot_instant_policy.pseudo_demos.rendering import PointCloudRenderer
+from lerobot_instant_policy.objects.rendering import PointCloudRenderer
 
 
 @pytest.fixture(scope="session")

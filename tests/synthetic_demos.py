@@ -15,7 +15,7 @@ from lerobot_instant_policy.contract import NUM_POINTS
 from lerobot_instant_policy.data.demonstrations import Demonstration
 from lerobot_instant_policy.data.lerobot_format import create_dataset, write_episode
 from lerobot_instant_policy.geometry.se3 import look_rotation, make_pose, pose_to_pos_quat, transform_points
-from lerobot_instant_policy.pseudo_demos.objects import load_object
+from lerobot_instant_policy.objects.library import load_object
 
 OBJECT_ID = "pb/mug"
 NUM_FRAMES = 12

@@ -11,11 +11,11 @@ import pytest
 
 from lerobot_instant_policy.cli.action_error import main as action_error_main
 from lerobot_instant_policy.cli.generate import main as generate_main
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 from lerobot_instant_policy.evaluation import action_error as ae
-from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.evaluation.checkpoints import EvaluationError
 
-SHIPPED = demo.SHIPPED_CHECKPOINT
+SHIPPED = SHIPPED_CHECKPOINT
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 

@@ -10,10 +10,10 @@ import torch
 from synthetic_demos import object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.context_encoder import ContextEncoder
 from lerobot_instant_policy.data.context_bank import ContextBank
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.policy.context_encoder import ContextEncoder
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 

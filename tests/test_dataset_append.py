@@ -14,7 +14,7 @@ import pytest
 import torch
 from synthetic_demos import NUM_FRAMES, object_pose, write_demo_dataset
 
-from lerobot_instant_policy.frame_encodings import (
+from lerobot_instant_policy.policy.frame_encodings import (
     META_FILE,
     build_frame_encodings,
     cache_path,

@@ -15,9 +15,9 @@ from synthetic_demos import (
     write_demo_dataset,
 )
 
-from lerobot_instant_policy.data.replay_plan import transform_pose_actions
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
+from lerobot_instant_policy.data.replay_plan import transform_pose_actions
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance, pose_from_pos_quat
 
 REPO_ID = "local/lift_demos"

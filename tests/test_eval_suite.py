@@ -11,6 +11,7 @@ import pytest
 
 from lerobot_instant_policy.cli import demo as demo_cli
 from lerobot_instant_policy.cli import eval_suite
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 from lerobot_instant_policy.evaluation import demo, side_by_side, suite
 from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings
 
@@ -146,11 +147,11 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
 
 
 def test_auto_demo_runs_instant_policy_beside_demo_replay(tmp_path):
-    policies, _ = demo.policies_to_run("auto", demo.SHIPPED_CHECKPOINT)
-    assert policies == [("instant_policy", str(demo.SHIPPED_CHECKPOINT)), ("demo_replay", None)]
+    policies, _ = demo.policies_to_run("auto", SHIPPED_CHECKPOINT)
+    assert policies == [("instant_policy", str(SHIPPED_CHECKPOINT)), ("demo_replay", None)]
     policies, reason = demo.policies_to_run("auto", tmp_path / "no_checkpoint")
     assert policies == [("demo_replay", None)] and "no instant_policy checkpoint" in reason
-    assert demo.policies_to_run("do_nothing", demo.SHIPPED_CHECKPOINT)[0] == [("do_nothing", None)]
+    assert demo.policies_to_run("do_nothing", SHIPPED_CHECKPOINT)[0] == [("do_nothing", None)]
 
 
 def test_summary_table_and_outcomes_from_eval_info(tmp_path):

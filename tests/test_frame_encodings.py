@@ -12,10 +12,11 @@ import torch
 from synthetic_demos import object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.context_encoder import ContextEncoder
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from lerobot_instant_policy.data.context_bank import ContextBank
-from lerobot_instant_policy.frame_encodings import (
+from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.policy.context_encoder import ContextEncoder
+from lerobot_instant_policy.policy.frame_encodings import (
     CACHE_DIR,
     META_FILE,
     build_frame_encodings,
@@ -23,7 +24,6 @@ from lerobot_instant_policy.frame_encodings import (
     encoder_fingerprint,
     load_frame_encodings,
 )
-from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 REPO = "local/ip_frame_cache"
 

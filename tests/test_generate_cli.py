@@ -20,7 +20,7 @@ from lerobot_instant_policy.geometry.se3 import (
     pose_from_pos_quat,
     transform_points,
 )
-from lerobot_instant_policy.pseudo_demos.objects import load_object
+from lerobot_instant_policy.objects.library import load_object
 
 REPO_ID = "local/test_pseudo"
 

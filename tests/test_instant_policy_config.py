@@ -48,7 +48,7 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
 def test_defaults_are_the_shipped_model_so_no_flag_trains_it():
     """``lerobot-train --policy.type=instant_policy`` with no policy flag trains the shipped checkpoint's model and
     recipe: every field of its config.json but the run's own (paths, device, precision, features) is the default."""
-    from lerobot_instant_policy.evaluation.demo import SHIPPED_CHECKPOINT
+    from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
     defaults = json.loads(json.dumps(draccus.encode(config())))

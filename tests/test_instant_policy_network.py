@@ -13,7 +13,7 @@ import lerobot_instant_policy.model as model_package
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.model.action_diffusion import points_in_action_frames
 from lerobot_instant_policy.model.instant_policy_network import DemoTensors, InstantPolicyNetwork
-from lerobot_instant_policy.policy_features import contract_input_features
+from lerobot_instant_policy.policy.features import contract_input_features
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lerobot_instant_policy.objects.rendering import RenderConfig
 from lerobot_instant_policy.pseudo_demos import merge
 from lerobot_instant_policy.pseudo_demos.generation import (
     DEMOS_FILE,
@@ -25,7 +26,6 @@ from lerobot_instant_policy.pseudo_demos.generation import (
     shard_ranges,
     shard_repo_id,
 )
-from lerobot_instant_policy.pseudo_demos.rendering import RenderConfig
 from lerobot_instant_policy.pseudo_demos.replay import DemoConfig
 
 REPO_ID = "local/test_merge"

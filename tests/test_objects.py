@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from lerobot_instant_policy.pseudo_demos.objects import (
+from lerobot_instant_policy.objects.library import (
     MAX_FACES,
     MAX_SIZE,
     MIN_SIZE,

@@ -16,8 +16,8 @@ from lerobot_instant_policy.geometry.se3 import (
     pose_from_pos_quat,
     transform_points,
 )
-from lerobot_instant_policy.pseudo_demos.objects import is_held_out, load_object
-from lerobot_instant_policy.pseudo_demos.rendering import PointCloudRenderer, RenderConfig
+from lerobot_instant_policy.objects.library import is_held_out, load_object
+from lerobot_instant_policy.objects.rendering import PointCloudRenderer, RenderConfig
 from lerobot_instant_policy.pseudo_demos.replay import (
     DemoConfig,
     GenerationError,

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from lerobot_instant_policy.geometry.registration import RegistrationConfig, register_rigid
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance, transform_points
-from lerobot_instant_policy.pseudo_demos.objects import load_object
+from lerobot_instant_policy.objects.library import load_object
 
 # objects without a symmetry that would make the motion ambiguous (the mug's handle, the duck's head)
 ASYMMETRIC_OBJECTS = ("pb/mug", "pb/duck")

@@ -12,8 +12,8 @@ import pytest
 import torch
 from synthetic_demos import make_demonstration, object_cloud, object_pose
 
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
-from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 REFERENCE = Path(__file__).parent / "data" / "shipped_actions.npz"
@@ -25,7 +25,7 @@ pytestmark = pytest.mark.usefixtures("single_torch_thread")
 def predict_reference_actions() -> np.ndarray:
     """Two demonstrations of a synthetic task, two live observations of it with the object moved, 4 DDIM steps
     from a seeded generator: ``(2, T, 8)`` world-frame actions of the shipped checkpoint."""
-    policy = InstantPolicyPolicy.from_pretrained(demo.SHIPPED_CHECKPOINT)
+    policy = InstantPolicyPolicy.from_pretrained(SHIPPED_CHECKPOINT)
     demonstrations = [make_demonstration(object_pose(0.5, 0.0, 10.0), TASK, seed=1),
                       make_demonstration(object_pose(0.45, 0.1, -20.0), TASK, seed=2)]
     policy.set_demonstrations(demonstrations)

@@ -12,13 +12,13 @@ import torch
 
 from lerobot_instant_policy.cli import demo as demo_cli
 from lerobot_instant_policy.cli.generate import main as generate_main
-from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT, InstantPolicyConfig
 from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.evaluation.checkpoints import Checkpoint, load_checkpoint
 from lerobot_instant_policy.evaluation.loss_curve import evaluate_loss, load_evaluation_set
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
-SHIPPED = demo.SHIPPED_CHECKPOINT
+SHIPPED = SHIPPED_CHECKPOINT
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "generate"
 MAX_BYTES = 50 * 1024**2
 

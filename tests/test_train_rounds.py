@@ -18,9 +18,9 @@ import pytest
 
 from lerobot_instant_policy.cli import train_rounds
 from lerobot_instant_policy.cli.train_rounds import main
-from lerobot_instant_policy.training import rounds
-from lerobot_instant_policy.training.rounds import (
-    SHIPPED_CHECKPOINT,
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
+from lerobot_instant_policy.orchestration import train_rounds as rounds
+from lerobot_instant_policy.orchestration.train_rounds import (
     Layout,
     Runner,
     Stage,

@@ -20,8 +20,8 @@ import argparse
 
 import numpy as np
 
+from lerobot_instant_policy.objects.library import load_object
 from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
-from lerobot_instant_policy.pseudo_demos.objects import load_object
 from lerobot_instant_policy.pseudo_demos.replay import DemoConfig, SceneLayout, reference_path, sample_layout
 from lerobot_instant_policy.pseudo_demos.tasks import sample_pseudo_task
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 
 from ..geometry.registration import RegistrationConfig
-from ..policy_features import (
+from ..policy.features import (
     check_policy_features,
     contract_input_features,
     contract_output_features,
@@ -32,7 +32,9 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
 
     Registration: ``registration_yaw_only`` restricts the estimated motion to a yaw about world z plus a
     translation (tabletop objects); ``registration_overlap`` is the fraction of correspondences ICP keeps;
-    ``registration_points`` caps the points used in the final ICP.
+    ``registration_points`` caps the points used in the final ICP. ``registration_per_object``: split the clouds
+    into objects and let the grasp follow the grasped object and the release the other one, for tasks whose two
+    objects move independently (:func:`~..data.replay_plan.plan_replay`); ``False``: one motion for the whole cloud.
     """
 
     demo_repo_id: str | None = None
@@ -42,6 +44,7 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     registration_yaw_only: bool = True
     registration_overlap: float = 0.8
     registration_points: int = 1024
+    registration_per_object: bool = False
 
     push_to_hub: bool = False
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 
 from ..contract import ACTION_KEY, STATE_KEY
-from ..policy_features import contract_input_features, contract_output_features, identity_normalization
+from ..policy.features import contract_input_features, contract_output_features, identity_normalization
 from .untrained import UntrainedPolicyConfigMixin
 
 

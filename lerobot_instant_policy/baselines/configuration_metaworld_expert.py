@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 
 from ..contract import ACTION_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
-from ..policy_features import contract_output_features, identity_normalization
+from ..policy.features import contract_output_features, identity_normalization
 from .untrained import UntrainedPolicyConfigMixin
 
 ENVIRONMENT_STATE_KEY = "observation.environment_state"

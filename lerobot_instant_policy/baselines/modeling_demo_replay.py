@@ -106,4 +106,5 @@ class DemoReplayPolicy(PreTrainedPolicy):
 
     def _plan(self, task: str, cloud_now: np.ndarray) -> ReplayPlan:
         """Register every demonstration of ``task`` onto ``cloud_now (P, 3)``; plan the best one's actions."""
-        return plan_replay(task, self.demonstrations(task), cloud_now, self.config.registration_config())
+        return plan_replay(task, self.demonstrations(task), cloud_now, self.config.registration_config(),
+                           per_object=self.config.registration_per_object)

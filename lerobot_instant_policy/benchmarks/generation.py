@@ -18,8 +18,8 @@ import time
 def _generate_worker(job: tuple[int, int, int]) -> tuple[int, int, float]:
     """Generate ``tasks`` pseudo-tasks of seed ``seed`` from ``first``; returns (frames, demos, seconds)."""
     seed, first, tasks = job
+    from ..objects.rendering import PointCloudRenderer
     from ..pseudo_demos.generation import GenerationConfig, generate_task
-    from ..pseudo_demos.rendering import PointCloudRenderer
 
     config = GenerationConfig(seed=seed, demos_per_task=2)
     frames = demos = 0

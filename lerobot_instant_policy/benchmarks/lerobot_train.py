@@ -25,7 +25,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..training.rounds import MODULES
+from ..orchestration.train_rounds import MODULES
 
 #: One of LeRobot's training log lines (``lerobot_train.py``): the step, then the averages of its log window.
 LOG_LINE = re.compile(r"step:(?P<step>[0-9.]+[KMBT]?) .*updt_s:(?P<updt_s>[0-9.]+) data_s:(?P<data_s>[0-9.]+)")

@@ -14,10 +14,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..configuration_instant_policy import SHIPPED_CHECKPOINT
 from ..evaluation.demo import (
     DEFAULT_TASK,
     POLICY_CHOICES,
-    SHIPPED_CHECKPOINT,
     failed_policies,
     policies_to_run,
     run_demo,

@@ -7,8 +7,8 @@ import dataclasses
 import sys
 
 from ..config_io import load_config
+from ..objects.rendering import CLOUD_SOURCES
 from ..pseudo_demos.generation import GenerationConfig, generate_dataset
-from ..pseudo_demos.rendering import CLOUD_SOURCES
 from ..pseudo_demos.tasks import FAMILIES
 
 

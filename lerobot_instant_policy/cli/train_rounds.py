@@ -1,4 +1,4 @@
-"""``lerobot-ip-train-rounds``: the command line of :mod:`lerobot_instant_policy.training.rounds` (train on
+"""``lerobot-ip-train-rounds``: the command line of :mod:`lerobot_instant_policy.orchestration.train_rounds` (train on
 pseudo-demonstrations generated while training runs, in rounds; ``make train-gpu``)."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import shlex
 import sys
 
 from ..config_io import load_config
+from ..orchestration.train_rounds import PROG, Layout, TrainRoundsConfig, TrainRoundsError, dry_run, run
 from ..pseudo_demos.tasks import FAMILIES
-from ..training.rounds import PROG, Layout, TrainRoundsConfig, TrainRoundsError, dry_run, run
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -5,6 +5,15 @@
 (:func:`~..geometry.registration.register_rigid`: principal axes + trimmed ICP), keeps the demonstration that fits
 best (lowest ``fit_error``) and moves its actions by the estimated ``T_now_demo``:
 ``T_world_ee_now = T_now_demo @ T_world_ee_demo`` for every commanded pose, gripper commands unchanged.
+
+Per object (``per_object=True``), for tasks whose two objects move independently between demonstrations: each
+cloud is split into objects (:func:`split_objects`), each demonstrated object is registered onto the live object it
+fits best, and the actions follow the object they act on. The grasped object ``A`` is the one nearest the gripper
+when it first closes (action ``c``), the reference ``B`` the other object nearest the gripper when it opens again
+(action ``r``). Actions up to ``c`` move with ``A`` (``T_A``), from ``r`` on with ``B`` (``T_B``); in the carry
+between them each pose moved with ``A`` is blended into the same pose moved with ``B`` (position linearly, rotation by
+slerp) by the fraction of the carry's path the demonstrated gripper has travelled. A demonstration without that
+structure (one object, no grasp and release) is planned whole.
 """
 
 from __future__ import annotations
@@ -12,6 +21,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from ..contract import poses_from_vectors, vectors_from_poses
 from ..geometry.registration import RegistrationConfig, RegistrationResult, register_rigid
@@ -21,13 +35,16 @@ from .demonstrations import Demonstration
 @dataclass(frozen=True)
 class ReplayPlan:
     """The actions one env executes: ``actions (F, 8)`` in the world frame, from demonstration ``demo_index`` of
-    ``task`` moved by ``T_now_demo (4, 4)``; ``registration`` is the winning fit."""
+    ``task`` moved by ``T_now_demo (4, 4)`` (whole-cloud plan) or by ``T_now_demo_per_action (F, 4, 4)`` (per-object
+    plan); ``registration`` is the winning whole-cloud fit, ``object_fits`` the per-object fits (``A``, ``B``)."""
 
     task: str
     demo_index: int
     T_now_demo: np.ndarray
     actions: np.ndarray
     registration: RegistrationResult
+    T_now_demo_per_action: np.ndarray | None = None
+    object_fits: tuple[RegistrationResult, ...] = ()
 
     def actions_from(self, step: int, count: int) -> np.ndarray:
         """Planned actions ``step … step + count − 1``, ``(count, 8)``; past the plan's end its last action repeats."""
@@ -36,17 +53,110 @@ class ReplayPlan:
 
 
 def plan_replay(
-    task: str, demonstrations: list[Demonstration], cloud_now: np.ndarray, config: RegistrationConfig
+    task: str,
+    demonstrations: list[Demonstration],
+    cloud_now: np.ndarray,
+    config: RegistrationConfig,
+    per_object: bool = False,
 ) -> ReplayPlan:
     """Register every demonstration of ``task`` onto ``cloud_now (P, 3)`` (world frame) and plan the best one's
-    actions in the live scene."""
+    actions in the live scene: whole, or with ``per_object`` per object where the demonstration allows it."""
     if not demonstrations:
         raise ValueError(f"no demonstrations of task {task!r} to replay")
     fits = [register_rigid(demo.points_world[0], cloud_now, config) for demo in demonstrations]
+    if per_object:
+        live_objects = split_objects(cloud_now)
+        plans = [_plan_per_object(task, index, demo, fits[index], live_objects, config)
+                 for index, demo in enumerate(demonstrations)]
+        plans = [plan for plan in plans if plan is not None]
+        if plans:
+            return min(plans, key=lambda plan: np.mean([fit.fit_error for fit in plan.object_fits]))
     best = int(np.argmin([fit.fit_error for fit in fits]))
     T_now_demo = fits[best].T_target_source
     actions = transform_pose_actions(T_now_demo, demonstrations[best].action)
     return ReplayPlan(task=task, demo_index=best, T_now_demo=T_now_demo, actions=actions, registration=fits[best])
+
+
+def split_objects(points: np.ndarray, gap: float = 0.02, min_fraction: float = 0.02) -> list[np.ndarray]:
+    """The objects of a segmented cloud ``points (P, 3)``: connected components of the graph joining points closer
+    than ``gap`` (m), largest first, without components of fewer than ``min_fraction · P`` points (stray points)."""
+    pairs = cKDTree(points).query_pairs(gap, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+    _, labels = connected_components(graph, directed=False)
+    sizes = np.bincount(labels)
+    kept = [label for label in np.argsort(-sizes, kind="stable") if sizes[label] >= min_fraction * len(points)]
+    return [points[labels == label] for label in kept]
+
+
+def _plan_per_object(
+    task: str,
+    demo_index: int,
+    demo: Demonstration,
+    whole_fit: RegistrationResult,
+    live_objects: list[np.ndarray],
+    config: RegistrationConfig,
+) -> ReplayPlan | None:
+    """The per-object plan of one demonstration (module docstring), or None where it has no grasp-and-release
+    between two objects or the live cloud has fewer than two objects."""
+    demo_objects = split_objects(demo.points_world[0])
+    opened = demo.action[:, 7] > 0.5
+    closes = np.flatnonzero(opened[:-1] & ~opened[1:]) + 1
+    if len(demo_objects) < 2 or len(live_objects) < 2 or not len(closes):
+        return None
+    close = int(closes[0])
+    reopens = np.flatnonzero(opened[close:]) + close
+    if not len(reopens):
+        return None
+    release = int(reopens[0])
+    positions = demo.action[:, :3]
+    grasped = _nearest_object(demo_objects, positions[close], exclude=None)
+    reference = _nearest_object(demo_objects, positions[release], exclude=grasped)
+    fits = _match_objects([demo_objects[grasped], demo_objects[reference]], live_objects, config)
+    T_A, T_B = (fit.T_target_source for fit in fits)
+    T_world_ee, gripper_open = poses_from_vectors(demo.action)
+    T_world_planned = _blend(T_A @ T_world_ee, T_B @ T_world_ee, _carry_fraction(positions, close, release))
+    actions = vectors_from_poses(T_world_planned, gripper_open).astype(np.float32)
+    T_per_action = T_world_planned @ np.linalg.inv(T_world_ee)
+    return ReplayPlan(task=task, demo_index=demo_index, T_now_demo=whole_fit.T_target_source, actions=actions,
+                      registration=whole_fit, T_now_demo_per_action=T_per_action, object_fits=tuple(fits))
+
+
+def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None) -> int:
+    """Index of the object (``(P_i, 3)`` clouds) with the point nearest to ``position (3,)``, other than ``exclude``."""
+    distances = [np.inf if index == exclude else float(np.min(np.linalg.norm(points - position, axis=1)))
+                 for index, points in enumerate(objects)]
+    return int(np.argmin(distances))
+
+
+def _match_objects(
+    demo_objects: list[np.ndarray], live_objects: list[np.ndarray], config: RegistrationConfig
+) -> list[RegistrationResult]:
+    """Register each demonstrated object onto every live object and keep the one-to-one assignment with the least
+    summed fit error (Hungarian); the fits of ``demo_objects`` in their order."""
+    fits = [[register_rigid(source, target, config) for target in live_objects] for source in demo_objects]
+    rows, columns = linear_sum_assignment([[fit.fit_error for fit in row] for row in fits])
+    return [fits[row][column] for row, column in zip(rows, columns, strict=True)]
+
+
+def _carry_fraction(positions: np.ndarray, close: int, release: int) -> np.ndarray:
+    """``(F,)``: 0 up to action ``close``, 1 from action ``release`` on, and between them the fraction of the path of
+    the demonstrated positions ``(F, 3)`` from ``close`` to ``release`` travelled (0 where the gripper did not move)."""
+    steps = np.linalg.norm(np.diff(positions[close:release + 1], axis=0), axis=1)
+    travelled = np.concatenate([[0.0], np.cumsum(steps)])
+    fraction = np.ones(len(positions))
+    fraction[:close] = 0.0
+    fraction[close:release + 1] = travelled / travelled[-1] if travelled[-1] > 0 else 1.0
+    return fraction
+
+
+def _blend(T_first: np.ndarray, T_second: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Poses ``(F, 4, 4)`` from ``T_first`` (weight 0) to ``T_second`` (weight 1), per pose: the position linearly, the
+    rotation along the shortest arc (slerp)."""
+    blended = T_first.copy()
+    blended[:, :3, 3] = (1.0 - weights)[:, None] * T_first[:, :3, 3] + weights[:, None] * T_second[:, :3, 3]
+    relative = Rotation.from_matrix(np.swapaxes(T_first[:, :3, :3], 1, 2) @ T_second[:, :3, :3]).as_rotvec()
+    blended[:, :3, :3] = T_first[:, :3, :3] @ Rotation.from_rotvec(weights[:, None] * relative).as_matrix()
+    return blended
 
 
 def transform_pose_actions(T_now_demo: np.ndarray, actions: np.ndarray) -> np.ndarray:

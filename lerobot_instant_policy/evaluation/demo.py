@@ -13,7 +13,6 @@ from pathlib import Path
 from .side_by_side import EpisodeOutcome, episode_outcomes, success_percent
 from .suite import SuiteSettings, run_task
 
-SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "checkpoints" / "instant_policy"
 DEFAULT_TASK = "pick_and_lift"
 POLICY_CHOICES = ("auto", "instant_policy", "demo_replay", "do_nothing")
 

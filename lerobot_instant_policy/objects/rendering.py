@@ -15,7 +15,7 @@ import numpy as np
 import pybullet
 
 from ..geometry.se3 import pose_to_pos_quat
-from .objects import ObjectModel
+from .library import ObjectModel
 
 _HIDDEN_POSITION = (0.0, 0.0, -50.0)
 CLOUD_SOURCES = ("cameras", "surface")

@@ -56,13 +56,13 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from ..configuration_instant_policy import SHIPPED_CHECKPOINT
 from ..pseudo_demos.tasks import FAMILIES
 
 PROG = "lerobot-ip-train-rounds"
 STATE_FILE = "state.json"
 STATE_VERSION = 1
 TRAIN_REPO_ID, VAL_REPO_ID = "local/train", "local/val"
-SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "checkpoints" / "instant_policy"
 EVAL_K, EVAL_N, EVAL_L = 4, 2, 10
 MODULES = {
     "lerobot-train": "lerobot.scripts.lerobot_train",

@@ -20,9 +20,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .data.context_bank import ContextBank
+from ..data.context_bank import ContextBank
+from ..model.instant_policy_network import DemoTensors, InstantPolicyNetwork
 from .frame_encodings import FrameEncodings
-from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
 
 # Episodes per frozen-encoder call when waypoints are encoded without frame encodings (L clouds each).
 ENCODE_CHUNK_EPISODES = 4

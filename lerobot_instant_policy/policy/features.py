@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature
 
-from .contract import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
+from ..contract import ACTION_KEY, NUM_POINTS, POINTCLOUD_KEY, POSE_GRIPPER_SHAPE, STATE_KEY
 
 
 def contract_input_features(num_points: int = NUM_POINTS) -> dict[str, PolicyFeature]:

@@ -152,7 +152,7 @@ def build_frame_encodings(
     data files are the dataset's first ones, unchanged: module docstring), those rows are copied and only frames
     F_old…F−1 are encoded; otherwise every frame is.
     """
-    from .contract import POINTCLOUD_KEY, STATE_KEY
+    from ..contract import POINTCLOUD_KEY, STATE_KEY
 
     root = Path(dataset.root)
     path = cache_path(root, fingerprint)

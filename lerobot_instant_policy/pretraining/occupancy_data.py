@@ -23,8 +23,8 @@ from scipy.spatial import cKDTree
 
 from ..geometry.sampling import resample_indices
 from ..geometry.se3 import transform_points
-from ..pseudo_demos.objects import load_object, object_ids
-from ..pseudo_demos.rendering import PointCloudRenderer
+from ..objects.library import load_object, object_ids
+from ..objects.rendering import PointCloudRenderer
 from ..pseudo_demos.replay import DemoConfig, sample_layout
 
 

@@ -11,8 +11,8 @@ from ..geometry.sampling import resample_indices
 from ..geometry.se3 import look_rotation, make_pose, transform_points
 from ..model.occupancy import OccupancyNetwork
 from ..model.point_ops import nearest_centroid
-from ..pseudo_demos.objects import load_object
-from ..pseudo_demos.rendering import PointCloudRenderer
+from ..objects.library import load_object
+from ..objects.rendering import PointCloudRenderer
 from .encoder_pretraining import classification_metrics
 from .occupancy_data import OccupancyDataConfig, dense_surface, sample_queries
 

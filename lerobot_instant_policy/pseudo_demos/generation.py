@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from ..data.lerobot_format import DEFAULT_FPS, create_dataset, write_episode
+from ..objects.library import load_object, object_ids, validate_object_id
+from ..objects.rendering import PointCloudRenderer, RenderConfig
 from .merge import merge_parallel
-from .objects import load_object, object_ids, validate_object_id
-from .rendering import PointCloudRenderer, RenderConfig
 from .replay import DemoConfig, GenerationError, hold_signature, make_demo
 from .tasks import FAMILIES, PseudoTask, sample_pseudo_task
 

@@ -15,8 +15,8 @@ from scipy.spatial.transform import Rotation
 from ..contract import vectors_from_poses
 from ..geometry.sampling import resample_indices
 from ..geometry.se3 import invert, look_rotation, make_pose, transform_points
-from .objects import ObjectModel
-from .rendering import PointCloudRenderer
+from ..objects.library import ObjectModel
+from ..objects.rendering import PointCloudRenderer
 from .tasks import GRASP_REACH, PseudoTask, Waypoint
 from .trajectory import (
     Step,

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.se3 import look_rotation, make_pose
-from .objects import ObjectModel
+from ..objects.library import ObjectModel
 
 TEMPLATES = ("grasp", "pick_and_place", "push", "pull", "hinge", "press")
 FAMILIES = ("reach", "reach_grip", "grasp_place", "full")

@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from ..contract import NUM_POINTS, POSE_GRIPPER_SHAPE, poses_from_vectors, vectors_from_poses
 from ..geometry.sampling import resample_points
 from ..geometry.se3 import make_pose, pose_to_pos_quat
-from ..pseudo_demos.rendering import (
+from ..objects.rendering import (
     CameraConfig,
     camera_projection_matrix,
     camera_view_matrix,
