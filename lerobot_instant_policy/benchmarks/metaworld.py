@@ -31,7 +31,7 @@ def bench_metaworld_env(task: str = "pick-place-v3", steps: int = 40, repeats: i
                 settings = env.camera_settings
         finally:
             env.close()
-    every_step = statistics.median(rates[1])
+    every_step, every_k = statistics.median(rates[1]), statistics.median(rates[pointcloud_every])
     return {
         "benchmark": "metaworld-env",
         "task": task,
@@ -44,10 +44,11 @@ def bench_metaworld_env(task: str = "pick-place-v3", steps: int = 40, repeats: i
         "cloud_ms": round(1000 * statistics.median(cloud_times), 1),
         "steps_per_s_cloud_every_step": round(every_step, 1),
         "pointcloud_every": pointcloud_every,
-        f"steps_per_s_cloud_every_{pointcloud_every}": round(statistics.median(rates[pointcloud_every]), 1),
+        f"steps_per_s_cloud_every_{pointcloud_every}": round(every_k, 1),
         "runs_steps_per_s_cloud_every_step": [round(value, 1) for value in rates[1]],
         "target_steps_per_s": TARGET_STEPS_PER_S,
-        "meets_target": bool(every_step >= TARGET_STEPS_PER_S),
+        "meets_target_cloud_every_step": bool(every_step >= TARGET_STEPS_PER_S),
+        f"meets_target_cloud_every_{pointcloud_every}": bool(every_k >= TARGET_STEPS_PER_S),
     }
 
 
