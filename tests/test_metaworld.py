@@ -141,11 +141,11 @@ def test_cloud_holds_the_task_objects_and_goal_marker_only(pick_place_env):
     observation, _ = env.reset(seed=5)
     world = env.metaworld_env
     puck, goal = world._get_pos_objects(), world._target_pos
-    depths, keeps = env._cameras.render(world.data)
+    depths, keeps = env.cameras.render(world.data)
     seen = sum(int(np.count_nonzero(depth < 3.0)) for depth in depths)
     kept = sum(int(keep.sum()) for keep in keeps)
     assert kept < 0.05 * seen  # the robot and the scenery fill the images; they are dropped
-    points = env._cameras.points(world.data)
+    points = env.cameras.points(world.data)
     on_puck = np.linalg.norm(points - puck, axis=1) < 0.035
     on_goal = np.linalg.norm(points - goal, axis=1) < 0.025
     assert on_puck.sum() > 100 and on_goal.sum() > 20

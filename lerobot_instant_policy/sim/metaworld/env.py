@@ -40,7 +40,7 @@ import_metaworld()  # sets MUJOCO_GL and checks the extra before mujoco is impor
 from lerobot.envs.metaworld import MetaworldEnv  # noqa: E402
 
 from ...contract import NUM_POINTS, POSE_GRIPPER_SHAPE  # noqa: E402
-from .actions import ee_state, metaworld_action  # noqa: E402
+from . import actions  # noqa: E402
 from .cameras import CameraSettings, SegmentedDepthCameras  # noqa: E402
 
 ENVIRONMENT_STATE_SHAPE = (39,)
@@ -73,7 +73,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         self.camera_settings = cameras or CameraSettings()
         self.task_description = self.task
         self._max_episode_steps = episode_length
-        self._cameras: SegmentedDepthCameras | None = None
+        self.cameras: SegmentedDepthCameras | None = None  # the cloud's cameras, built with the MetaWorld env
         self._gripper_open = True
         self._cloud_rng = np.random.default_rng(0)
         pose = spaces.Box(-np.inf, np.inf, shape=POSE_GRIPPER_SHAPE, dtype=np.float32)
@@ -97,12 +97,12 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         self._env.model.light_castshadow[:] = 0  # videos without shadows and multisampling (module docstring);
         self._env.model.vis.quality.offsamples = 0  # read when a renderer's context is made: before any rendering
         target_sites = tuple(name for name, _ in self._env._target_site_config)
-        self._cameras = SegmentedDepthCameras(self._env.model, self.camera_settings, target_sites)
+        self.cameras = SegmentedDepthCameras(self._env.model, self.camera_settings, target_sites)
 
     def ee_state(self) -> np.ndarray:
         """``agent_pos (8,)``: the EE pose now (``tcp_center``, hand orientation) and the gripper state."""
         env = self.metaworld_env
-        return ee_state(env.data.body("hand").xmat, env.tcp_center, self._gripper_open)
+        return actions.ee_state(env.data.body("hand").xmat, env.tcp_center, self._gripper_open)
 
     def reset(self, seed: int | None = None, **kwargs):
         self._gripper_open = True
@@ -113,7 +113,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
 
     def step(self, action: np.ndarray):
         env = self.metaworld_env
-        command = metaworld_action(action, env.tcp_center, env.action_scale)
+        command = actions.metaworld_action(action, env.tcp_center, env.action_scale)
         gripper_open = bool(np.asarray(action)[7] >= 0.5)
         self._cloud_due = gripper_open != self._gripper_open or self._steps_since_cloud + 1 >= self.pointcloud_every
         self._gripper_open = gripper_open
@@ -130,7 +130,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         for site, position in self._env._target_site_config:
             self._env._set_pos_site(site, position)
         if self._cloud is None or self._cloud_due:
-            self._cloud = self._cameras.cloud(self._env.data, self.num_points, self._cloud_rng)
+            self._cloud = self.cameras.cloud(self._env.data, self.num_points, self._cloud_rng)
             self._steps_since_cloud = 0
         else:
             self._steps_since_cloud += 1
@@ -142,7 +142,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         }
 
     def close(self) -> None:
-        if self._cameras is not None:
-            self._cameras.close()
-            self._cameras = None
+        if self.cameras is not None:
+            self.cameras.close()
+            self.cameras = None
         super().close()
