@@ -113,18 +113,20 @@ class MetaworldPointCloudEnvConfig(LeRobotMetaworldConfig):
                 "camera_resolution": self.camera_resolution, "pointcloud_every": self.pointcloud_every}
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        """One vector env of ``n_envs`` per task (each its own task group). Asynchronous envs use LeRobot's lazy
+        wrapper, as its own MetaWorld env does: a task's worker processes start when that task is evaluated, so
+        ``mt10`` keeps ``n_envs`` workers alive, not ten times as many."""
         import gymnasium as gym
-        from lerobot.envs.utils import freeze_after_episode_end
+        from lerobot.envs.utils import _LazyAsyncVectorEnv, freeze_after_episode_end
 
-        envs = {}
+        envs, spaces = {}, (None, None, None)
         for task in resolve_tasks(self.task):
             factory = partial(make_metaworld_pointcloud_env, task, **self.gym_kwargs)
-            env_fns = [freeze_after_episode_end(factory) for _ in range(n_envs)]
             if use_async_envs and n_envs > 1:
-                vector_env = gym.vector.AsyncVectorEnv(
-                    env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="forkserver"
-                )
+                vector_env = _LazyAsyncVectorEnv([factory] * n_envs, *spaces)
+                spaces = (vector_env.observation_space, vector_env.action_space, vector_env.metadata)
             else:
-                vector_env = gym.vector.SyncVectorEnv(env_fns, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+                vector_env = gym.vector.SyncVectorEnv([freeze_after_episode_end(factory) for _ in range(n_envs)],
+                                                     autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
             envs[task] = {0: vector_env}
         return envs
