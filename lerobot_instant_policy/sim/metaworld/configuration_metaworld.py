@@ -37,9 +37,9 @@ MT10_TASKS = (
 
 
 def make_metaworld_pointcloud_env(task: str, **env_kwargs):
-    """One ``MetaworldPointCloudEnv`` (a picklable factory for gymnasium's vector envs)."""
-    from .cameras import CameraSettings
-    from .env import MetaworldPointCloudEnv
+    """One ``MetaworldPointCloudEnv`` (a picklable factory for gymnasium's vector envs). The env module comes first:
+    it sets ``MUJOCO_GL`` before anything imports mujoco, also in a fresh worker process."""
+    from .env import CameraSettings, MetaworldPointCloudEnv
 
     cameras = CameraSettings(tuple(env_kwargs.pop("cameras")), env_kwargs.pop("camera_resolution"))
     return MetaworldPointCloudEnv(task, cameras=cameras, **env_kwargs)
