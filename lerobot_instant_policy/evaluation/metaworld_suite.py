@@ -15,8 +15,6 @@ Clouds are rendered every ``pointcloud_every`` steps and after gripper changes (
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -24,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..sim.metaworld.configuration_metaworld import MT10_TASKS
-from .suite import DEMO_SET_STRIDE, SuiteError, demo_root
+from .suite import DEMO_SET_STRIDE, SuiteError, check_seeds, demo_root, run_lerobot_eval
 
 POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
 DEMONSTRATION_POLICIES = ("instant_policy", "demo_replay")
@@ -57,13 +55,7 @@ class MetaworldSuiteSettings:
             raise SuiteError("episodes, demo_sets, batch_size, num_demos and pointcloud_every must be positive")
         if self.policy == "instant_policy" and not self.policy_path:
             raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
-        if self.num_demos > DEMO_SET_STRIDE // 2:
-            raise SuiteError(f"num_demos must be at most {DEMO_SET_STRIDE // 2}")
-        last_demo_seed = self.demo_seed + DEMO_SET_STRIDE * self.demo_sets
-        last_eval_seed = self.eval_seed + self.episodes * self.demo_sets
-        if self.demo_seed < last_eval_seed and self.eval_seed < last_demo_seed:
-            raise SuiteError(f"demonstration seeds {self.demo_seed}…{last_demo_seed - 1} overlap evaluation seeds "
-                             f"{self.eval_seed}…{last_eval_seed - 1}: choose another demo_seed or eval_seed")
+        check_seeds(self.num_demos, self.demo_seed, self.eval_seed, self.episodes, self.demo_sets)
 
     @property
     def runs_dir(self) -> Path:
@@ -103,18 +95,8 @@ def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0) -> 
         record_expert_demos(task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
                             episode_length=settings.episode_length)
     output_dir = settings.runs_dir / task / f"set-{demo_set}"
-    if output_dir.exists():
-        shutil.rmtree(output_dir)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
-    completed = subprocess.run(command, capture_output=True, text=True)
-    if completed.returncode != 0:
-        log = settings.runs_dir / f"{task}-set-{demo_set}.log"
-        log.parent.mkdir(parents=True, exist_ok=True)
-        log.write_text(completed.stdout + completed.stderr)
-        tail = "\n".join((completed.stdout + completed.stderr).strip().splitlines()[-15:])
-        raise SuiteError(f"lerobot-eval failed on {task}, set {demo_set} (exit {completed.returncode}; full log "
-                         f"{log}):\n{tail}")
-    return output_dir
+    return run_lerobot_eval(command, settings.runs_dir, task, demo_set)
 
 
 def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = print) -> list[Path]:

@@ -68,14 +68,7 @@ class SuiteSettings:
             raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
         if self.swap and self.policy not in DEMONSTRATION_POLICIES:
             raise SuiteError(f"the context swap needs a policy that reads demonstrations, not {self.policy!r}")
-        if self.num_demos > DEMO_SET_STRIDE // 2:
-            raise SuiteError(f"num_demos must be at most {DEMO_SET_STRIDE // 2} (each set's seeds span "
-                             f"{DEMO_SET_STRIDE})")
-        last_demo_seed = self.demo_seed + DEMO_SET_STRIDE * self.demo_sets
-        last_eval_seed = self.eval_seed + self.episodes * self.demo_sets
-        if self.demo_seed < last_eval_seed and self.eval_seed < last_demo_seed:
-            raise SuiteError(f"demonstration seeds {self.demo_seed}…{last_demo_seed - 1} overlap evaluation seeds "
-                             f"{self.eval_seed}…{last_eval_seed - 1}: choose another demo_seed or eval_seed")
+        check_seeds(self.num_demos, self.demo_seed, self.eval_seed, self.episodes, self.demo_sets)
 
     @property
     def name(self) -> str:
@@ -92,6 +85,19 @@ class SuiteSettings:
 
     def eval_seed_of(self, demo_set: int) -> int:
         return self.eval_seed + self.episodes * demo_set
+
+
+def check_seeds(num_demos: int, demo_seed: int, eval_seed: int, episodes: int, demo_sets: int) -> None:
+    """``SuiteError`` unless every set's ``num_demos`` fit its seed span and no demonstration seed (set s from
+    ``demo_seed + DEMO_SET_STRIDE · s``) is an evaluation seed (set s from ``eval_seed + episodes · s``)."""
+    if num_demos > DEMO_SET_STRIDE // 2:
+        raise SuiteError(f"num_demos must be at most {DEMO_SET_STRIDE // 2} (each set's seeds span "
+                         f"{DEMO_SET_STRIDE})")
+    last_demo_seed = demo_seed + DEMO_SET_STRIDE * demo_sets
+    last_eval_seed = eval_seed + episodes * demo_sets
+    if demo_seed < last_eval_seed and eval_seed < last_demo_seed:
+        raise SuiteError(f"demonstration seeds {demo_seed}…{last_demo_seed - 1} overlap evaluation seeds "
+                         f"{eval_seed}…{last_eval_seed - 1}: choose another demo_seed or eval_seed")
 
 
 def swap_source(task: str, tasks: list[str]) -> str:
@@ -160,12 +166,20 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
         record_demonstrations(settings, task, demos, seed, source or task)
     output_dir = settings.runs_dir / task / f"set-{demo_set}"
+    command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
+    return run_lerobot_eval(command, settings.runs_dir, task, demo_set)
+
+
+def run_lerobot_eval(command: list[str], runs_dir: Path, task: str, demo_set: int) -> Path:
+    """Run ``command`` (a ``lerobot-eval`` call writing to ``runs_dir/<task>/set-<demo_set>``, emptied first) and
+    return that directory; a ``SuiteError`` with the output's tail when it fails, the whole output kept in
+    ``runs_dir/<task>-set-<demo_set>.log``."""
+    output_dir = runs_dir / task / f"set-{demo_set}"
     if output_dir.exists():
         shutil.rmtree(output_dir)
-    command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     completed = subprocess.run(command, capture_output=True, text=True)
     if completed.returncode != 0:
-        log = settings.runs_dir / f"{task}-set-{demo_set}.log"
+        log = runs_dir / f"{task}-set-{demo_set}.log"
         log.parent.mkdir(parents=True, exist_ok=True)
         log.write_text(completed.stdout + completed.stderr)
         tail = "\n".join((completed.stdout + completed.stderr).strip().splitlines()[-15:])

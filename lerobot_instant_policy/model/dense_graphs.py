@@ -37,24 +37,12 @@ from .graph import (
     EdgeType,
     StageGraphs,
 )
-from .graph_transformer import DenseLayout, HeteroGraphTransformer
+from .graph_transformer import DenseLayout
 
 
 class DenseGraphs(StageGraphs):
-    """:class:`~.graph.StageGraphs` in the dense layout (module docstring).
-
-    Args:
-        local_network: σ, context_network: φ, action_network: ψ: the network's graph transformers (compiled or not:
-            :meth:`~.graph_transformer.HeteroGraphTransformer.compile_dense`).
-        num_frequencies: the sinusoidal encoding's frequencies in every edge attribute.
-    """
-
-    def __init__(
-        self, local_network: HeteroGraphTransformer, context_network: HeteroGraphTransformer,
-        action_network: HeteroGraphTransformer, num_frequencies: int,
-    ):
-        self.local_network, self.context_network, self.action_network = local_network, context_network, action_network
-        self.num_frequencies = num_frequencies
+    """:class:`~.graph.StageGraphs` in the dense layout (module docstring); σ, φ and ψ compiled or not
+    (:meth:`~.graph_transformer.HeteroGraphTransformer.compile_dense`)."""
 
     def local(
         self, scene_positions: torch.Tensor, scene_nodes: torch.Tensor, gripper_nodes: torch.Tensor,

@@ -32,11 +32,15 @@ every edge type out as batches of complete bipartite graphs and runs the same la
 
 from __future__ import annotations
 
-from typing import Protocol
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING
 
 import torch
 
 from .encodings import encoding_dim
+
+if TYPE_CHECKING:
+    from .graph_transformer import HeteroGraphTransformer
 
 SCENE, GRIPPER, DEMO, CURRENT, ACTION = "scene", "gripper", "demo", "current", "action"
 SCENE_TO_SCENE = (SCENE, "local", SCENE)
@@ -75,10 +79,15 @@ def action_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
     return {CURRENT_TO_ACTION: transform_dim(num_frequencies), ACTION_TO_ACTION: transform_dim(num_frequencies)}
 
 
-class StageGraphs(Protocol):
+class StageGraphs(ABC):
     """σ, φ and ψ on their graphs, given each stage's node tensors: the network's three
     :class:`~.graph_transformer.HeteroGraphTransformer` (their weights) run on the connectivity and edge attributes
     of the module docstring, built here from the node positions and frames.
+
+    Args:
+        local_network: σ, context_network: φ, action_network: ψ: the network's graph transformers (the layouts hold
+            them, the network owns them, so the state dict's names do not depend on the layout).
+        num_frequencies: the sinusoidal encoding's frequencies in every edge attribute.
 
     Sizes: ``R`` local graphs, ``B`` samples, ``N`` demonstrations of ``L`` waypoints, ``T`` actions, ``M`` scene
     nodes and ``G`` gripper nodes per local graph, ``H`` hidden features. ``keypoints (G, 3)`` are the gripper
@@ -86,6 +95,14 @@ class StageGraphs(Protocol):
     the positions and frames they meet.
     """
 
+    def __init__(
+        self, local_network: HeteroGraphTransformer, context_network: HeteroGraphTransformer,
+        action_network: HeteroGraphTransformer, num_frequencies: int,
+    ):
+        self.local_network, self.context_network, self.action_network = local_network, context_network, action_network
+        self.num_frequencies = num_frequencies
+
+    @abstractmethod
     def local(
         self, scene_positions: torch.Tensor, scene_nodes: torch.Tensor, gripper_nodes: torch.Tensor,
         keypoints: torch.Tensor,
@@ -102,8 +119,8 @@ class StageGraphs(Protocol):
         Returns:
             ``(R, G, H)`` the gripper nodes after σ.
         """
-        ...
 
+    @abstractmethod
     def context(
         self, T_world_ee: torch.Tensor, demo_nodes: torch.Tensor, current_nodes: torch.Tensor,
         live_scene: tuple[torch.Tensor, torch.Tensor] | None, keypoints: torch.Tensor,
@@ -122,8 +139,8 @@ class StageGraphs(Protocol):
         Returns:
             ``(B, G, H)`` the current gripper nodes after φ.
         """
-        ...
 
+    @abstractmethod
     def actions(
         self, T_ee_actions: torch.Tensor, current_nodes: torch.Tensor, action_nodes: torch.Tensor,
         keypoints: torch.Tensor,
@@ -139,4 +156,3 @@ class StageGraphs(Protocol):
         Returns:
             ``(B, T, G, H)`` the action gripper nodes after ψ.
         """
-        ...

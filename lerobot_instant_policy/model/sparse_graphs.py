@@ -34,7 +34,6 @@ from .graph import (
     SCENE_TO_SCENE,
     StageGraphs,
 )
-from .graph_transformer import HeteroGraphTransformer
 
 
 def _all_pairs(num_src: int, num_dst: int, without_diagonal: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
@@ -175,22 +174,9 @@ def keypoint_offset_attr(store, keypoints: torch.Tensor, num_frequencies: int) -
     return sinusoidal_encoding(keypoints[store.dst_keypoint] - keypoints[store.src_keypoint], num_frequencies)
 
 
-
 class SparseGraphs(StageGraphs):
     """:class:`~.graph.StageGraphs` on torch_geometric graphs: node tensors flattened to one row per node, edge
-    attributes gathered per edge of the cached connectivity.
-
-    Args:
-        local_network: σ, context_network: φ, action_network: ψ: the network's graph transformers.
-        num_frequencies: the sinusoidal encoding's frequencies in every edge attribute.
-    """
-
-    def __init__(
-        self, local_network: HeteroGraphTransformer, context_network: HeteroGraphTransformer,
-        action_network: HeteroGraphTransformer, num_frequencies: int,
-    ):
-        self.local_network, self.context_network, self.action_network = local_network, context_network, action_network
-        self.num_frequencies = num_frequencies
+    attributes gathered per edge of the cached connectivity."""
 
     def local(
         self, scene_positions: torch.Tensor, scene_nodes: torch.Tensor, gripper_nodes: torch.Tensor,
