@@ -155,9 +155,10 @@ results-study: $(INSTALLED)
 	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,K1 K2 K4 K8 N1 N3 N4 L2 L5 L15,$(run)=outputs/results/study/runs/$(run)) \
 		--out docs/results_study
 
-# docs/metaworld.md (issue 31): the shipped checkpoint, demo_replay, do_nothing and MetaWorld's scripted expert in
-# LeRobot's MetaWorld env (--env.type=metaworld_pointcloud) on MT10, METAWORLD_EPISODES episodes per task, N=2 expert
-# demonstrations (seeds 0, 1), evaluation seeds from 1000, then the table. Needs the metaworld extra (in .[dev]) and
+# docs/metaworld.md (issue 31): the shipped checkpoint (and its context-swap control), demo_replay, do_nothing and
+# MetaWorld's scripted expert in LeRobot's MetaWorld env (--env.type=metaworld_pointcloud) on MT10,
+# METAWORLD_EPISODES episodes per task, N=2 expert demonstrations (seeds 0, 1), evaluation seeds from 1000, then the
+# table. Needs the metaworld extra (in .[dev]) and
 # an OpenGL library for MuJoCo's offscreen rendering: libosmesa6 is installed with apt-get where it is missing.
 METAWORLD_EPISODES ?= 10
 METAWORLD = MUJOCO_GL=osmesa OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-metaworld --episodes $(METAWORLD_EPISODES) \
@@ -169,7 +170,8 @@ eval-metaworld: $(INSTALLED)
 	$(METAWORLD) --policy do_nothing
 	$(METAWORLD) --policy demo_replay
 	$(METAWORLD) --policy instant_policy --policy-path $(CKPT)
-	$(VENV)/bin/lerobot-ip-eval-table $(foreach policy,metaworld_expert do_nothing demo_replay instant_policy,\
+	$(METAWORLD) --policy instant_policy --policy-path $(CKPT) --swap
+	$(VENV)/bin/lerobot-ip-eval-table $(foreach policy,metaworld_expert do_nothing demo_replay instant_policy instant_policy-swap,\
 		$(policy)=outputs/eval_metaworld/runs/$(policy)) --out docs/results_metaworld
 
 POLICY ?= demo_replay

@@ -256,3 +256,40 @@ def test_expert_demonstrations_then_lerobot_eval_end_to_end(tmp_path):
     assert [entry["task_group"] for entry in per_task] == ["reach-v3"]
     assert len(per_task[0]["metrics"]["successes"]) == 2
     assert len(list((output_dir / "videos").rglob("*.mp4"))) == 2
+
+
+# ------------------------------------------------------------------------------------------------ suite protocol
+def test_swap_control_reads_the_next_tasks_expert_relabelled(monkeypatch, tmp_path):
+    """With --swap each task's lerobot-eval reads the next task's expert demonstrations, recorded on the set's seeds
+    and labelled with the task evaluated; the runs go to runs/<policy>-swap, apart from the own-demonstration runs."""
+    from lerobot_instant_policy.evaluation import metaworld_suite
+    from lerobot_instant_policy.sim.metaworld import recording
+
+    recorded, commands = [], []
+    monkeypatch.setattr(recording, "record_expert_demos", lambda task, episodes, out, repo_id, seed, **kwargs:
+                        recorded.append((task, out.name, repo_id, seed, kwargs["label"])))
+    monkeypatch.setattr(metaworld_suite, "run_lerobot_eval", lambda command, runs_dir, task, demo_set:
+                        commands.append(command) or runs_dir / task / f"set-{demo_set}")
+    settings = metaworld_suite.MetaworldSuiteSettings(
+        policy="instant_policy", policy_path="ckpt", tasks=("reach-v3", "push-v3"), out=tmp_path, demo_sets=2,
+        swap=True)
+    runs = metaworld_suite.run_suite(settings, report=lambda line: None)
+
+    assert recorded == [("push-v3", "reach-v3-n2-s0-from-push-v3", "local/reach-v3", 0, "reach-v3"),
+                        ("push-v3", "reach-v3-n2-s100-from-push-v3", "local/reach-v3", 100, "reach-v3"),
+                        ("reach-v3", "push-v3-n2-s0-from-reach-v3", "local/push-v3", 0, "push-v3"),
+                        ("reach-v3", "push-v3-n2-s100-from-reach-v3", "local/push-v3", 100, "push-v3")]
+    assert runs[0] == tmp_path / "runs" / "instant_policy-swap" / "reach-v3" / "set-0"
+    assert "--env.task=reach-v3" in commands[0] and "--policy.demo_repo_id=local/reach-v3" in commands[0]
+    assert f"--policy.demo_root={tmp_path / 'demos' / 'reach-v3-n2-s0-from-push-v3'}" in commands[0]
+
+
+@pytest.mark.parametrize("policy, tasks, message", [
+    ("do_nothing", ("reach-v3", "push-v3"), "needs a policy that reads demonstrations"),
+    ("demo_replay", ("reach-v3",), "at least two tasks"),
+])
+def test_swap_without_demonstrations_to_swap_is_refused(policy, tasks, message):
+    from lerobot_instant_policy.evaluation.metaworld_suite import MetaworldSuiteSettings, SuiteError
+
+    with pytest.raises(SuiteError, match=message):
+        MetaworldSuiteSettings(policy=policy, tasks=tasks, swap=True).validate()

@@ -5,6 +5,7 @@
   lerobot-ip-eval-metaworld --policy metaworld_expert --episodes 10                  (MT10, the upper bound)
   lerobot-ip-eval-metaworld --policy instant_policy --policy-path CKPT --tasks pick-place-v3,reach-v3
   lerobot-ip-eval-metaworld --policy demo_replay --demo-sets 3 --out outputs/eval_metaworld
+  lerobot-ip-eval-metaworld --policy instant_policy --policy-path CKPT --swap   (each task reads the next one's demos)
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--pointcloud-every", type=int, default=8,
                         help="render clouds every this many steps and after gripper changes (8: what instant_policy reads)")
     parser.add_argument("--out", type=Path, default=Path("outputs/eval_metaworld"))
+    parser.add_argument("--swap", action="store_true",
+                        help="the context-swap control: each task reads the next task's demonstrations, relabelled")
     parser.add_argument("--policy-arg", dest="policy_args", type=policy_arg, action="append", default=[],
                         metavar="KEY=VALUE", help="override a policy config field (repeatable; --policy.KEY=VALUE)")
     return parser
@@ -57,14 +60,16 @@ def main(argv: list[str] | None = None) -> int:
             episodes=args.episodes, demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos,
             demo_seed=args.demo_seed, eval_seed=args.eval_seed, episode_length=args.episode_length,
             pointcloud_every=args.pointcloud_every, policy_args=tuple(args.policy_args),
+            swap=args.swap,
         )
         runs = run_suite(settings, report=lambda line: print(line, flush=True))
     except (SuiteError, MetaworldSetupError, ValueError, RuntimeError, FileExistsError) as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2
-    results = collect_results([f"{settings.policy}={run}" for run in runs], None, ENV_TYPE)
-    json_path, png_path = write_table(results, args.out / f"success_table_{settings.policy}",
-                                      title=f"MetaWorld: {settings.policy}, success per task")
+    name = settings.runs_dir.name
+    results = collect_results([f"{name}={run}" for run in runs], None, ENV_TYPE)
+    json_path, png_path = write_table(results, args.out / f"success_table_{name}",
+                                      title=f"MetaWorld: {name}, success per task")
     print(format_table(results))
     print(f"\nwrote {json_path} and {png_path}")
     return 0

@@ -6,10 +6,13 @@ For every task (default: MT10) and every demonstration set ``s = 0 … demo_sets
   DEMO_SET_STRIDE · s`` (``sim.metaworld.recording``; each set its own seeds, disjoint from the other sets' and from
   every evaluation seed), kept between runs, for the policies that read demonstrations;
 * LeRobot's own ``lerobot-eval`` runs the policy in ``--env.type=metaworld_pointcloud`` for ``episodes`` episodes on
-  seeds ``eval_seed + episodes · s …``, so every policy meets the same scenes with the same demonstrations.
+  seeds ``eval_seed + episodes · s …``, so every policy meets the same scenes with the same demonstrations;
+* with ``swap``, the context-swap control: the policy reads the demonstrations of the next task in ``tasks``
+  (``evaluation.suite.swap_source``), recorded by that task's expert on the same seeds and labelled with the task
+  evaluated, so a policy that reads its demonstrations loses what it read and one that acts from a prior does not.
 
 Clouds are rendered every ``pointcloud_every`` steps and after gripper changes (8: the steps ``instant_policy`` reads;
-``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>``, ``runs/<name>/<task>/set-<s>`` (each
+``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]``, ``runs/<policy>[-swap]/<task>/set-<s>`` (each
 ``lerobot-eval`` output directory, with its videos); ``evaluation.success_table`` pools the sets per task.
 """
 
@@ -22,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..sim.metaworld.configuration_metaworld import MT10_TASKS
-from .suite import DEMO_SET_STRIDE, SuiteError, check_seeds, demo_root, run_lerobot_eval
+from .suite import DEMO_SET_STRIDE, SuiteError, check_seeds, demo_root, run_lerobot_eval, swap_source
 
 POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
 DEMONSTRATION_POLICIES = ("instant_policy", "demo_replay")
@@ -32,7 +35,7 @@ ENV_TYPE = "metaworld_pointcloud"
 @dataclass(frozen=True)
 class MetaworldSuiteSettings:
     """What one evaluation of a policy on MetaWorld tasks records, runs and where it writes (module docstring).
-    ``policy_args``: ``--policy.KEY=VALUE`` added to every ``lerobot-eval`` call."""
+    ``policy_args``: ``--policy.KEY=VALUE`` added to every ``lerobot-eval`` call; ``swap``: the context-swap control."""
 
     policy: str = "demo_replay"
     policy_path: str | None = None
@@ -47,6 +50,7 @@ class MetaworldSuiteSettings:
     episode_length: int = 200
     pointcloud_every: int = 8
     policy_args: tuple[str, ...] = ()
+    swap: bool = False
 
     def validate(self) -> None:
         if self.policy not in POLICIES:
@@ -55,11 +59,15 @@ class MetaworldSuiteSettings:
             raise SuiteError("episodes, demo_sets, batch_size, num_demos and pointcloud_every must be positive")
         if self.policy == "instant_policy" and not self.policy_path:
             raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
+        if self.swap and self.policy not in DEMONSTRATION_POLICIES:
+            raise SuiteError(f"the context swap needs a policy that reads demonstrations, not {self.policy!r}")
+        if self.swap and len(self.tasks) < 2:
+            raise SuiteError("the context swap needs at least two tasks")
         check_seeds(self.num_demos, self.demo_seed, self.eval_seed, self.episodes, self.demo_sets)
 
     @property
     def runs_dir(self) -> Path:
-        return self.out / "runs" / self.policy
+        return self.out / "runs" / (self.policy + ("-swap" if self.swap else ""))
 
     def demo_seed_of(self, demo_set: int) -> int:
         return self.demo_seed + DEMO_SET_STRIDE * demo_set
@@ -85,15 +93,16 @@ def lerobot_eval_command(settings: MetaworldSuiteSettings, task: str, demos: Pat
 
 
 def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0) -> Path:
-    """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them);
-    returns the ``lerobot-eval`` output directory."""
+    """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them; with
+    ``swap``, the next task's, labelled ``task``); returns the ``lerobot-eval`` output directory."""
     from ..sim.metaworld.recording import record_expert_demos
 
     seed = settings.demo_seed_of(demo_set)
-    demos = demo_root(settings.out, task, settings.num_demos, seed)
+    source = swap_source(task, list(settings.tasks)) if settings.swap else None
+    demos = demo_root(settings.out, task, settings.num_demos, seed, source=source)
     if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
-        record_expert_demos(task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
-                            episode_length=settings.episode_length)
+        record_expert_demos(source or task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
+                            label=task, episode_length=settings.episode_length)
     output_dir = settings.runs_dir / task / f"set-{demo_set}"
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     return run_lerobot_eval(command, settings.runs_dir, task, demo_set)
@@ -107,5 +116,6 @@ def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = 
         for demo_set in range(settings.demo_sets):
             started = time.perf_counter()
             runs.append(run_task(settings, task, demo_set))
-            report(f"{task}, set {demo_set}: evaluated in {time.perf_counter() - started:.0f} s -> {runs[-1]}")
+            with_demos = f" with {swap_source(task, list(settings.tasks))}'s demonstrations" if settings.swap else ""
+            report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> {runs[-1]}")
     return runs
