@@ -131,15 +131,19 @@ def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
 
 
 def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_path, capsys):
-    """The shipped checkpoint, given 2 demonstrations, lifts the object in both episodes of ``make demo``'s task (it
-    did in 20 of 20 suite episodes); a policy that failed every episode makes the demo exit with 1."""
-    code = demo_cli.main(["--task", "pick_and_lift", "--episodes", "2", "--out", str(tmp_path),
-                          "--policy", "instant_policy"])
+    """``make demo``'s path on a fresh clone (its task, the shipped checkpoint through ``--policy.path`` beside
+    ``demo_replay``): given 2 demonstrations, the shipped checkpoint lifts the object in both episodes (it did in 20
+    of 20 suite episodes); a policy that failed every episode makes the demo exit with 1."""
+    assert demo.best_policy(SHIPPED_CHECKPOINT)[:2] == ("instant_policy", str(SHIPPED_CHECKPOINT))
+    code = demo_cli.main(["--episodes", "2", "--out", str(tmp_path)])
     captured = capsys.readouterr()
     assert code == 0, captured.out + captured.err
-    info = json.loads(next(tmp_path.rglob("eval_info.json")).read_text())
-    assert info["per_task"][0]["metrics"]["successes"] == [True, True]
-    assert "task pick_and_lift: instant_policy succeeded in 100% of 2 episodes" in captured.out
+    assert "policies: instant_policy, demo_replay" in captured.out
+    runs = {path.relative_to(tmp_path / "runs").parts[0]: json.loads(path.read_text())
+            for path in tmp_path.rglob("eval_info.json")}
+    assert set(runs) == {"instant_policy", "demo_replay"}, sorted(runs)
+    assert runs["instant_policy"]["per_task"][0]["metrics"]["successes"] == [True, True]
+    assert f"task {demo.DEFAULT_TASK}: instant_policy succeeded in 100% of 2 episodes" in captured.out
     failing = [side_by_side.EpisodeOutcome(1000, False, None)]
     succeeding = [side_by_side.EpisodeOutcome(1000, True, None)]
     assert demo.failed_policies({"instant_policy": failing, "demo_replay": succeeding}) == ["instant_policy"]

@@ -1,5 +1,6 @@
 """The instant_policy checkpoint shipped in the package (issue 6): complete, small, loadable the way LeRobot loads
-it, better than an untrained network on held-out pseudo-tasks, and what ``make demo`` runs through ``lerobot-eval``."""
+it, better than an untrained network on held-out pseudo-tasks (``make demo``'s run of it through ``lerobot-eval``:
+test_eval_suite.py)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from lerobot_instant_policy.cli import demo as demo_cli
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT, InstantPolicyConfig
-from lerobot_instant_policy.evaluation import demo
 from lerobot_instant_policy.evaluation.checkpoints import Checkpoint, load_checkpoint
 from lerobot_instant_policy.evaluation.loss_curve import evaluate_loss, load_evaluation_set
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
@@ -72,18 +71,6 @@ def test_the_shipped_model_reads_its_demonstrations_on_held_out_pseudo_tasks(tmp
     own = result["settings"][0]["translation_mm"]
     assert result["context_gain"]["translation"] > 1.3, result
     assert own < 0.85 * result["hold"]["translation_mm"], result
-
-
-def test_make_demo_runs_the_shipped_policy_through_lerobot_eval(tmp_path, capsys):
-    """``make demo``'s path on a fresh clone: the shipped checkpoint via ``--policy.path`` in ``lerobot-eval``."""
-    policy, path, _ = demo.best_policy(SHIPPED)
-    assert (policy, path) == ("instant_policy", str(SHIPPED))
-    code = demo_cli.main(["--task", demo.DEFAULT_TASK, "--episodes", "1", "--batch-size", "1", "--out", str(tmp_path)])
-    output = capsys.readouterr().out
-    assert code == 0, output
-    assert f"task {demo.DEFAULT_TASK}: instant_policy succeeded in" in output
-    info = json.loads(next(tmp_path.rglob("eval_info.json")).read_text())
-    assert info["overall"]["n_episodes"] == 1
 
 
 def test_bench_times_the_shipped_checkpoint_with_its_own_settings():
