@@ -172,7 +172,7 @@ eval-metaworld: $(INSTALLED)
 	$(METAWORLD) --policy instant_policy --policy-path $(CKPT)
 	$(METAWORLD) --policy instant_policy --policy-path $(CKPT) --swap
 	$(VENV)/bin/lerobot-ip-eval-table $(foreach policy,metaworld_expert do_nothing demo_replay instant_policy instant_policy-swap,\
-		$(policy)=outputs/eval_metaworld/runs/$(policy)) --out docs/results_metaworld
+		$(policy)=outputs/eval_metaworld/runs/$(policy)) --env-type metaworld_pointcloud --out docs/results_metaworld
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)
