@@ -306,7 +306,8 @@ def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and
     assert json.loads((out / "summary.json").read_text()) == summary
 
 
-@pytest.mark.parametrize("name", ["gpu.json", "cpu_campaign.json", "cpu_campaign_continue.json"])
+@pytest.mark.parametrize("name", sorted(path.name for path in (Path(__file__).resolve().parents[1] / "configs" /
+                                                                "train_rounds").glob("*.json")))
 def test_the_shipped_round_configs_are_valid_and_the_continued_campaign_starts_from_committed_weights(name, capsys,
                                                                                                        monkeypatch):
     """Every preset under configs/train_rounds validates and plans its stages; the continued campaign's start is the
@@ -318,3 +319,4 @@ def test_the_shipped_round_configs_are_valid_and_the_continued_campaign_starts_f
     if name == "cpu_campaign_continue.json":
         assert f"--policy.path={repo / 'checkpoints' / 'campaign_015000'}" in printed
         assert "--shared-layout-fraction 0.0" in printed
+        assert "--policy.optimizer_lr=2e-4" in printed  # a continued network restarts below its own peak lr
