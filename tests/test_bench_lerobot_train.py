@@ -33,6 +33,7 @@ def test_throughput_counts_only_lines_after_the_warm_up():
         summarize(lines, batch_size=8, skip=150)
 
 
+@pytest.mark.slow  # CI: the paths it runs are tested elsewhere; kept out of the 10-minute suite
 def test_runs_lerobot_train_per_variant_and_reports_ratios(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     (tmp_path / "tmp").mkdir()

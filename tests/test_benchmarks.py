@@ -7,6 +7,7 @@ import json
 import pytest
 
 
+@pytest.mark.slow  # CI: the paths it runs are tested elsewhere; kept out of the 10-minute suite
 def test_generate_benchmark_prints_measured_json(capsys):
     from lerobot_instant_policy.cli.bench import main
 

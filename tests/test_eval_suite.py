@@ -95,41 +95,6 @@ def test_best_policy_falls_back_to_demo_replay_without_a_checkpoint(tmp_path):
     assert (policy, path) == ("demo_replay", None) and "no instant_policy checkpoint" in reason
 
 
-def test_make_demo_runs_lerobot_eval_end_to_end(tmp_path, capsys):
-    code = demo_cli.main(
-        [
-            "--task",
-            "push_button",
-            "--episodes",
-            "2",
-            "--batch-size",
-            "2",
-            "--out",
-            str(tmp_path),
-            "--policy",
-            "demo_replay",
-        ]
-    )
-    output = capsys.readouterr().out
-    assert code == 0, output
-    info = json.loads(next(tmp_path.rglob("eval_info.json")).read_text())
-    assert info["overall"]["n_episodes"] == 2
-    assert [entry["task_group"] for entry in info["per_task"]] == ["push_button"]
-    videos = info["overall"]["video_paths"]
-    assert videos and all(Path(video).stat().st_size > 1000 for video in videos)
-    assert "task push_button: demo_replay succeeded in" in output
-    assert (tmp_path / "demos" / "push_button-n2-s0" / "meta" / "info.json").is_file()
-    assert sum(info["per_task"][0]["metrics"]["successes"]) >= 1  # demo_replay solved 1 or 2 of these 2 scenes
-    # the side-by-side table: one row per episode with its seed and outcome, then the rate
-    successes = info["per_task"][0]["metrics"]["successes"]
-    for index, success in enumerate(successes):
-        assert f"{index:<7}  {1000 + index:<4}  {'success' if success else 'fail'}" in output
-    sheet = tmp_path / "contact_sheet_push_button.png"
-    assert f"contact sheet (first and last frame of every episode): {sheet}" in output
-    image = plt.imread(sheet)
-    assert image.shape[0] > 200 and image.shape[1] > 300
-
-
 def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_path, capsys):
     """``make demo``'s path on a fresh clone (its task, the shipped checkpoint through ``--policy.path`` beside
     ``demo_replay``): given 2 demonstrations, the shipped checkpoint lifts the object in both episodes (it did in 20
@@ -144,6 +109,21 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
     assert set(runs) == {"instant_policy", "demo_replay"}, sorted(runs)
     assert runs["instant_policy"]["per_task"][0]["metrics"]["successes"] == [True, True]
     assert f"task {demo.DEFAULT_TASK}: instant_policy succeeded in 100% of 2 episodes" in captured.out
+    for info in runs.values():
+        assert info["overall"]["n_episodes"] == 2
+        assert [entry["task_group"] for entry in info["per_task"]] == [demo.DEFAULT_TASK]
+        videos = info["overall"]["video_paths"]
+        assert len(videos) == 2 and all(Path(video).stat().st_size > 1000 for video in videos)
+    assert (tmp_path / "demos" / f"{demo.DEFAULT_TASK}-n2-s0" / "meta" / "info.json").is_file()
+    # the side-by-side table: one row per episode with its seed and each policy's outcome
+    replay = runs["demo_replay"]["per_task"][0]["metrics"]["successes"]
+    rows = [line.split() for line in captured.out.splitlines() if line.split()[:1] in (["0"], ["1"])]
+    assert rows == [[str(index), str(1000 + index), "success", "success" if success else "fail"]
+                    for index, success in enumerate(replay)]
+    sheet = tmp_path / f"contact_sheet_{demo.DEFAULT_TASK}.png"
+    assert f"contact sheet (first and last frame of every episode): {sheet}" in captured.out
+    image = plt.imread(sheet)
+    assert image.shape[0] > 200 and image.shape[1] > 300
     failing = [side_by_side.EpisodeOutcome(1000, False, None)]
     succeeding = [side_by_side.EpisodeOutcome(1000, True, None)]
     assert demo.failed_policies({"instant_policy": failing, "demo_replay": succeeding}) == ["instant_policy"]

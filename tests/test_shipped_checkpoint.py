@@ -38,6 +38,7 @@ def test_the_checkpoint_is_complete_small_and_documented():
         assert fact in card, f"the model card does not state {fact!r}"
 
 
+@pytest.mark.slow  # CI: the paths it runs are tested elsewhere; kept out of the 10-minute suite
 def test_the_shipped_model_beats_an_untrained_one_on_held_out_pseudo_tasks(tmp_path):
     """Its training loss on pseudo-tasks made of held-out objects, with the same draws of noise and context, is far
     below that of the same network freshly initialised (the frozen encoder is the same in both)."""
