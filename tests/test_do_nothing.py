@@ -158,6 +158,7 @@ def test_eval_suite_command_has_no_demonstration_flags(tmp_path):
     assert not any(part.startswith(("--policy.demo_", "--policy.num_demos")) for part in command)
 
 
+@pytest.mark.slow  # CI: the suite's lerobot-eval run is tested through make demo's path (test_eval_suite.py)
 def test_eval_suite_runs_lerobot_eval_without_recording_demonstrations(tmp_path, capsys):
     """The real ``lerobot-eval --policy.type=do_nothing`` on push_button (1 episode of 80 steps): no success."""
     code = eval_suite.main(
