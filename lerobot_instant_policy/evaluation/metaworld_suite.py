@@ -12,8 +12,9 @@ For every task (default: MT10) and every demonstration set ``s = 0 … demo_sets
   evaluated, so a policy that reads its demonstrations loses what it read and one that acts from a prior does not.
 
 Clouds are rendered every ``pointcloud_every`` steps and after gripper changes (8: the steps ``instant_policy`` reads;
-``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]``, ``runs/<policy>[-swap]/<task>/set-<s>`` (each
-``lerobot-eval`` output directory, with its videos); ``evaluation.success_table`` pools the sets per task.
+``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]``,
+``runs/<policy>[-swap]/<task>/set-<s>`` (each ``lerobot-eval`` output directory, with its videos);
+``evaluation.success_table`` pools the sets per task.
 """
 
 from __future__ import annotations
@@ -92,13 +93,13 @@ def lerobot_eval_command(settings: MetaworldSuiteSettings, task: str, demos: Pat
     return command + list(settings.policy_args)
 
 
-def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0) -> Path:
-    """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them; with
-    ``swap``, the next task's, labelled ``task``); returns the ``lerobot-eval`` output directory."""
+def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0, source: str | None = None) -> Path:
+    """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them;
+    ``source``: the swap control's other task, whose expert records them labelled ``task``); returns the
+    ``lerobot-eval`` output directory."""
     from ..sim.metaworld.recording import record_expert_demos
 
     seed = settings.demo_seed_of(demo_set)
-    source = swap_source(task, list(settings.tasks)) if settings.swap else None
     demos = demo_root(settings.out, task, settings.num_demos, seed, source=source)
     if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
         record_expert_demos(source or task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
@@ -113,9 +114,10 @@ def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = 
     settings.validate()
     runs = []
     for task in settings.tasks:
+        source = swap_source(task, list(settings.tasks)) if settings.swap else None
         for demo_set in range(settings.demo_sets):
             started = time.perf_counter()
-            runs.append(run_task(settings, task, demo_set))
-            with_demos = f" with {swap_source(task, list(settings.tasks))}'s demonstrations" if settings.swap else ""
+            runs.append(run_task(settings, task, demo_set, source))
+            with_demos = f" with {source}'s demonstrations" if source else ""
             report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> {runs[-1]}")
     return runs
