@@ -131,10 +131,13 @@ perception-eval: $(INSTALLED)
 # docs/results.md: the suite protocol (evaluation/suite.py): every task x 3 disjoint demonstration sets x 10 episodes,
 # N=2, the same seeds for every policy; instant_policy also with each task handed the next task's demonstrations (the
 # context swap); then the table with Wilson 95% intervals, grouped by task family. Then the K / N / L study.
+# lerobot-eval renders a video frame after every step of its first 10 episodes: at 64 px instead of the env's 256 one
+# frame takes about a tenth of the time (lerobot-ip-bench env), and the frames never enter the success figures.
 CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy
-SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo-sets 3 --out outputs/results/suite
+SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo-sets 3 --out outputs/results/suite \
+	--env-arg render_size=64
 STUDY = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy instant_policy --policy-path $(CKPT) \
-	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --out outputs/results/study
+	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --out outputs/results/study --env-arg render_size=64
 STUDY_TASKS ?= push_button,open_drawer
 results: results-suite results-study
 

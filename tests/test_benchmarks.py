@@ -120,3 +120,15 @@ def test_train_step_benchmark_refuses_non_positive_sizes(capsys, flag):
         main(["train-step", flag, "0"])
     assert exit_info.value.code == 2
     assert "--repeats, --batch-size and --noise-draws must be positive" in capsys.readouterr().err
+
+
+def test_env_benchmark_times_steps_observations_and_a_video_frame_per_render_size(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["env", "--steps", "3", "--repeats", "1", "--video-sizes", "64", "16", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["benchmark"] == "env" and result["steps_per_s"] > 0 and result["observation_render_ms"] > 0
+    assert set(result["video_frame_ms"]) == {"64", "16"} and min(result["video_frame_ms"].values()) > 0
+    with pytest.raises(SystemExit):
+        main(["env", "--video-sizes", "0"])
+    assert "--video-sizes must be positive" in capsys.readouterr().err

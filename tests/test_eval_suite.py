@@ -1,5 +1,6 @@
 """The evaluation path users run: demonstration sets, LeRobot's own lerobot-eval, the success table, make demo."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -216,3 +217,49 @@ def test_eval_suite_writes_the_table_and_chart_over_demonstration_sets_and_the_s
     assert dataset.meta.total_frames != own.meta.total_frames  # another task's motion, not this task's
     swap_table = json.loads((tmp_path / "success_table_demo_replay-swap.json").read_text())
     assert {row["policy"] for row in swap_table["rows"]} == {"demo_replay-swap"}
+
+
+def test_resume_keeps_the_cells_evaluated_with_the_same_settings_and_refuses_other_settings(tmp_path, monkeypatch):
+    """``--resume`` after an interrupted protocol: the finished cells are kept (a video size change is allowed: it
+    changes no observation), the missing one is evaluated; other settings, another swap source, or finished cells
+    without their settings record are refused before anything runs or is deleted. ``lerobot-eval`` is replaced by a
+    stand-in writing its ``eval_info.json`` (the real call runs in make demo's test)."""
+    evaluated = []
+
+    def fake_lerobot_eval(command, runs_dir, task, demo_set):
+        output_dir = runs_dir / task / f"set-{demo_set}"
+        output_dir.mkdir(parents=True, exist_ok=True)
+        (output_dir / "eval_info.json").write_text(json.dumps({"command": command}))
+        evaluated.append((task, demo_set))
+        return output_dir
+
+    monkeypatch.setattr(suite, "run_lerobot_eval", fake_lerobot_eval)
+    tasks = ["push_button", "knock_over"]
+    settings = SuiteSettings(policy="do_nothing", out=tmp_path, episodes=2, demo_sets=2)
+    suite.run_suite(settings, tasks, report=lambda line: None)
+    assert evaluated == [("push_button", 0), ("push_button", 1), ("knock_over", 0), ("knock_over", 1)]
+    (settings.runs_dir / "knock_over" / "set-1" / "eval_info.json").unlink()  # interrupted in the last cell
+
+    evaluated.clear()
+    lines = []
+    resumed = SuiteSettings(policy="do_nothing", out=tmp_path, episodes=2, demo_sets=2, resume=True,
+                            env_args=("--env.render_size=64",))
+    runs = suite.run_suite(resumed, tasks, report=lines.append)
+    assert evaluated == [("knock_over", 1)] and len(runs) == 4
+    assert sum("kept from the earlier run" in line for line in lines) == 3
+
+    for other, changed in ((dict(episodes=3), "episodes"), (dict(env_args=("--env.depth_noise_std=0.002",)), "env_args"),
+                           (dict(eval_seed=2000), "eval_seed")):
+        with pytest.raises(SuiteError, match=changed):
+            suite.run_suite(dataclasses.replace(resumed, **other), tasks, report=lambda line: None)
+    swapped = SuiteSettings(policy="demo_replay", out=tmp_path, episodes=2, demo_sets=1, swap=True)
+    monkeypatch.setattr(suite, "record_demonstrations", lambda *args: None)
+    suite.run_suite(swapped, tasks, report=lambda line: None)
+    with pytest.raises(SuiteError, match="swap_source"):
+        suite.run_suite(SuiteSettings(policy="demo_replay", out=tmp_path, episodes=2, demo_sets=1, swap=True,
+                                      resume=True), [*tasks, "pick_and_lift"], report=lambda line: None)
+    (settings.runs_dir / "push_button" / "set-0" / suite.CELL_FILE).unlink()
+    evaluated.clear()
+    with pytest.raises(SuiteError, match="no suite_cell.json"):
+        suite.run_suite(resumed, tasks, report=lambda line: None)
+    assert evaluated == [] and (settings.runs_dir / "push_button" / "set-0" / "eval_info.json").is_file()

@@ -63,6 +63,30 @@ def test_same_seed_same_scene_and_first_observation():
         second.close()
 
 
+def test_rendering_videos_at_any_size_changes_nothing_the_policy_sees():
+    """``lerobot-eval`` renders a video frame after every step; the suite renders them at 64 px
+    (``--env-arg render_size=64``). A rollout that renders gives the same observations and success as one that
+    does not."""
+    from lerobot_instant_policy.sim.env import BulletTabletopConfig
+
+    plain = BulletTabletopEnv("pick_and_lift")
+    rendering = BulletTabletopEnv("pick_and_lift", BulletTabletopConfig(render_size=(64, 64)))
+    try:
+        obs_a, _ = plain.reset(seed=3)
+        obs_b, _ = rendering.reset(seed=3)
+        plan = plain.scripted_actions()
+        for action in plan[:12]:
+            obs_a, _, _, _, info_a = plain.step(action)
+            assert rendering.render().shape == (64, 64, 3)
+            obs_b, _, _, _, info_b = rendering.step(action)
+            np.testing.assert_array_equal(obs_a["pointcloud"], obs_b["pointcloud"])
+            np.testing.assert_array_equal(obs_a["agent_pos"], obs_b["agent_pos"])
+            assert info_a["is_success"] == info_b["is_success"]
+    finally:
+        plain.close()
+        rendering.close()
+
+
 def test_far_targets_are_clipped_and_reported(env):
     observation, _ = env.reset(seed=0)
     start = observation["agent_pos"][:3].copy()

@@ -106,16 +106,18 @@ def _add_env(commands) -> None:
     env.add_argument("--task", default="pick_and_place")
     env.add_argument("--steps", type=int, default=60)
     env.add_argument("--repeats", type=int, default=3)
+    env.add_argument("--video-sizes", type=int, nargs="+", default=[256, 64],
+                     help="also time one render() video frame at each of these square sizes (--env.render_size)")
     env.add_argument("--json", action="store_true", help=_JSON_HELP)
     env.set_defaults(handler=_run_env)
 
 
 def _run_env(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    if min(args.steps, args.repeats) <= 0:
-        parser.error("--steps and --repeats must be positive")
+    if min(args.steps, args.repeats, *args.video_sizes) <= 0:
+        parser.error("--steps, --repeats and --video-sizes must be positive")
     from ..benchmarks.env import bench_env
 
-    return bench_env(args.task, args.steps, args.repeats)
+    return bench_env(args.task, args.steps, args.repeats, tuple(args.video_sizes))
 
 
 def _add_metaworld_env(commands) -> None:

@@ -65,6 +65,9 @@ def build_parser(prog: str = "lerobot-ip-eval-suite") -> argparse.ArgumentParser
                         help="set an env config field for the evaluation, e.g. depth_noise_std=0.002 (repeatable)")
     parser.add_argument("--run-name", help="name of this run's folder under OUT/runs and of its table (default: the "
                                            "policy, with -swap for --swap)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the cells of OUT/runs/<name> already evaluated with the same settings and evaluate "
+                             "the rest (refused if a finished cell's settings differ)")
     return parser
 
 
@@ -89,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         policy=args.policy, policy_path=args.policy_path, out=args.out, episodes=args.episodes,
         demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos, demo_seed=args.demo_seed,
         eval_seed=args.eval_seed, swap=args.swap, task_module=args.task_module, policy_args=tuple(args.policy_args),
-        run_name=args.run_name, obs_type=args.obs_type, env_args=tuple(args.env_args),
+        run_name=args.run_name, obs_type=args.obs_type, env_args=tuple(args.env_args), resume=args.resume,
     )
     try:
         runs = run_suite(settings, resolve_tasks(args.tasks, args.task_module),

@@ -13,17 +13,20 @@ Protocol. For every task and every demonstration set ``s = 0 … demo_sets − 1
   the task alone.
 
 Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]`` (the recorded sets), ``runs/<run name>/<task>/
-set-<s>`` (each ``lerobot-eval`` output directory); ``evaluation.success_table`` pools the sets per task.
+set-<s>`` (each ``lerobot-eval`` output directory, with ``suite_cell.json``: the settings that decided its result;
+``resume`` keeps the finished cells evaluated with the same settings and evaluates the rest); ``evaluation.
+success_table`` pools the sets per task.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..sim.recording import record
@@ -31,6 +34,10 @@ from ..sim.recording import record
 POLICIES = ("demo_replay", "instant_policy", "do_nothing")
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
+CELL_FILE = "suite_cell.json"  # in each runs/<run name>/<task>/set-<s>: the settings that decided its result
+# settings that decide no cell's result: where and how many, and the videos' size (rendering changes no observation)
+NOT_RESULT_SETTINGS = ("out", "demo_sets", "run_name", "resume")
+VIDEO_ENV_ARGS = ("--env.render_size=",)
 
 
 class SuiteError(ValueError):
@@ -41,7 +48,8 @@ class SuiteError(ValueError):
 class SuiteSettings:
     """What one evaluation of a policy on ``bullet_tabletop`` tasks records, runs and where it writes (module
     docstring). ``policy_args`` / ``env_args``: ``--policy.KEY=VALUE`` / ``--env.KEY=VALUE`` added to every
-    ``lerobot-eval`` call (``env_args`` for the evaluation only: demonstrations are always recorded clean)."""
+    ``lerobot-eval`` call (``env_args`` for the evaluation only: demonstrations are always recorded clean).
+    ``resume``: keep the cells of ``runs_dir`` that finished under the same settings instead of evaluating them again."""
 
     policy: str = "demo_replay"
     policy_path: str | None = None
@@ -58,6 +66,7 @@ class SuiteSettings:
     run_name: str | None = None
     obs_type: str = "pointcloud"
     env_args: tuple[str, ...] = ()
+    resume: bool = False
 
     def validate(self) -> None:
         if self.policy not in POLICIES:
@@ -167,7 +176,9 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
         record_demonstrations(settings, task, demos, seed, source or task)
     output_dir = settings.runs_dir / task / f"set-{demo_set}"
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
-    return run_lerobot_eval(command, settings.runs_dir, task, demo_set)
+    run_lerobot_eval(command, settings.runs_dir, task, demo_set)
+    (output_dir / CELL_FILE).write_text(json.dumps(cell_record(settings, source), indent=2) + "\n")
+    return output_dir
 
 
 def run_lerobot_eval(command: list[str], runs_dir: Path, task: str, demo_set: int) -> Path:
@@ -189,15 +200,54 @@ def run_lerobot_eval(command: list[str], runs_dir: Path, task: str, demo_set: in
 
 
 def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str], None] = print) -> list[Path]:
-    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories."""
+    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories. With
+    ``settings.resume`` the finished cells are kept (``cells_to_keep`` checks them all before anything runs)."""
     settings.validate()
+    sources = {task: swap_source(task, tasks) if settings.swap else None for task in tasks}
+    kept = cells_to_keep(settings, sources) if settings.resume else set()
     runs = []
     for task in tasks:
-        source = swap_source(task, tasks) if settings.swap else None
+        source = sources[task]
+        with_demos = f" with {source}'s demonstrations" if source else ""
         for demo_set in range(settings.demo_sets):
+            if (task, demo_set) in kept:
+                runs.append(settings.runs_dir / task / f"set-{demo_set}")
+                report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
+                continue
             started = time.perf_counter()
             runs.append(run_task(settings, task, demo_set, source))
-            with_demos = f" with {source}'s demonstrations" if source else ""
             report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> "
                    f"{runs[-1]}")
     return runs
+
+
+def cell_record(settings: SuiteSettings, source: str | None) -> dict:
+    """What decides a cell's result (JSON-ready): the settings but ``NOT_RESULT_SETTINGS`` and the video size, and
+    the swap's source task."""
+    record = {key: value for key, value in asdict(settings).items() if key not in NOT_RESULT_SETTINGS}
+    record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
+    record["policy_args"] = list(settings.policy_args)
+    record["swap_source"] = source
+    return record
+
+
+def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> set[tuple[str, int]]:
+    """``(task, set)`` of the finished cells (``eval_info.json`` written) of ``settings.runs_dir``; a ``SuiteError``
+    naming what differs when one was evaluated with other settings or has no ``CELL_FILE`` (nothing is deleted)."""
+    kept = set()
+    for task, source in sources.items():
+        expected = cell_record(settings, source)
+        for demo_set in range(settings.demo_sets):
+            cell = settings.runs_dir / task / f"set-{demo_set}"
+            if not (cell / "eval_info.json").is_file():
+                continue
+            if not (cell / CELL_FILE).is_file():
+                raise SuiteError(f"--resume: {cell} has no {CELL_FILE} to check its settings against; evaluate "
+                                 f"again without --resume, or give this run another --run-name")
+            recorded = json.loads((cell / CELL_FILE).read_text())
+            changed = sorted(key for key in expected.keys() | recorded.keys() if expected.get(key) != recorded.get(key))
+            if changed:
+                raise SuiteError(f"--resume: {cell} was evaluated with other settings ({', '.join(changed)}); resume "
+                                 f"with the same settings, or give this run another --run-name")
+            kept.add((task, demo_set))
+    return kept
