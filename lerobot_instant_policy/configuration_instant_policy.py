@@ -41,6 +41,7 @@ SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "checkpoints" / "instant_policy"  
 # T and K the network is built for (N and L: the network's SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS).
 SUPPORTED_HORIZON = (1, 32)
 SUPPORTED_INFERENCE_STEPS = (1, 8)
+MAX_SAMPLES_PER_PREDICTION = 64  # samples_per_prediction: a batch of S × rows per prediction
 
 DEFAULT_GRIPPER_KEYPOINTS = GRIPPER_KEYPOINTS
 
@@ -163,7 +164,10 @@ class InstantPolicyConfig(PreTrainedConfig):
     noises them to the timestep of the last ⌈s·K⌉ of the K DDIM steps and runs only those (SDEdit). ``None`` (shipped):
     the paper's path, pure noise, the demonstrations read through the graph alone. ``replay_per_object``: plan the
     replay per object (the grasp follows the grasped object, the release the other one) where two objects move
-    independently, as ``demo_replay``'s ``registration_per_object``.
+    independently, as ``demo_replay``'s ``registration_per_object``. ``samples_per_prediction`` = S > 1: each
+    prediction is the mean of S samples from S noise draws (per action the mean translation, the chordal mean rotation
+    and the sign of the mean gripper variable; :meth:`~.model.instant_policy_network.InstantPolicyNetwork.
+    sample_actions`); 1 (shipped): the paper's single sample.
     """
 
     preset: str = "small"
@@ -218,6 +222,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     replan_on_gripper_change: bool = True
     replay_init_strength: float | None = None
     replay_per_object: bool = False
+    samples_per_prediction: int = 1
 
     push_to_hub: bool = False
 
@@ -259,6 +264,9 @@ class InstantPolicyConfig(PreTrainedConfig):
                 f"diffusion_train_steps ({self.diffusion_train_steps}) must be at least inference_steps "
                 f"({self.inference_steps})"
             )
+        if not 1 <= self.samples_per_prediction <= MAX_SAMPLES_PER_PREDICTION:
+            raise ValueError(f"samples_per_prediction must be in 1…{MAX_SAMPLES_PER_PREDICTION}, got "
+                             f"{self.samples_per_prediction}")
         if self.replay_init_strength is not None and not 0.0 < self.replay_init_strength <= 1.0:
             raise ValueError(f"replay_init_strength must lie in (0, 1] or be None, got {self.replay_init_strength}")
         if not 1 <= self.n_action_steps <= self.horizon:

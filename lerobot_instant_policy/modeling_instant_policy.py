@@ -189,7 +189,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), with
         ``num_inference_steps`` DDIM steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
         With ``config.replay_init_strength`` the denoising starts from the episode's replay plan at the current step
-        (:meth:`replay_guess`).
+        (:meth:`replay_guess`); with ``config.samples_per_prediction`` > 1 each row is the mean of that many samples.
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
@@ -213,6 +213,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             T_ee_actions, action_gripper = self.network.sample_actions(
                 context, num_inference_steps=steps, generator=generator,
                 initial=None if guess is None else guess[rows], strength=self.config.replay_init_strength or 1.0,
+                num_samples=self.config.samples_per_prediction,
             )
             chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk

@@ -100,6 +100,24 @@ def test_chunk_errors_measure_known_offsets():
     assert np.allclose(ae.chunk_errors(negated, target)["rotation_deg"], 0.0, atol=1e-5)
 
 
+def test_samples_per_prediction_reaches_every_prediction_from_the_command_line(held_out_root, monkeypatch, capsys):
+    """``--samples-per-prediction 3``: every prediction (own, swap) samples 3 rows per frame and predicts their
+    mean; reported in the JSON; a value outside 1…64 is refused before the checkpoint loads."""
+    from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork
+
+    sample, counts = InstantPolicyNetwork.sample_actions, []
+    monkeypatch.setattr(InstantPolicyNetwork, "sample_actions",
+                        lambda self, *a, **k: counts.append(k["num_samples"]) or sample(self, *a, **k))
+    assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--tasks", "2",
+                              "--frames-per-task", "1", "--K", "2", "--N", "2", "--L", "10", "--default", "2,2,10",
+                              "--no-untrained", "--samples-per-prediction", "3"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["samples_per_prediction"] == 3 and counts == [3] * 4  # 2 frames own, 2 swapped
+    assert math.isfinite(result["settings"][0]["translation_mm"])
+    assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root),
+                              "--samples-per-prediction", "0"]) == 2
+    assert "samples per prediction must be in 1…64" in capsys.readouterr().err
+
 def test_bad_inputs_give_clear_errors(held_out_root, tmp_path, capsys):
     with pytest.raises(ae.ActionErrorError, match=r"N can be at most 2"):
         _run(held_out_root, ns=[3])

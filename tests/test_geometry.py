@@ -180,3 +180,29 @@ def test_resample_indices_rejects_empty_cloud():
 def test_resample_indices_rejects_wrong_shape(shape):
     with pytest.raises(ValueError, match=r"shape \(P, 3\)"):
         resample_indices(np.zeros(shape), 8, np.random.default_rng(0))
+
+
+def test_mean_rigid_averages_translations_and_rotations_and_commutes_with_a_common_motion():
+    """``mean_rigid``: the mean of copies is the pose itself; of two rotations ±θ about one axis, the identity; the
+    mean translation; a valid rotation; and moving every pose by one rigid G moves the mean by G (so averaging in the
+    EE frame and then composing with the EE pose gives the same as averaging world-frame poses)."""
+    import torch
+
+    from lerobot_instant_policy.geometry.rigid_torch import compose, make_rigid, mean_rigid
+
+    rng = np.random.default_rng(0)
+
+    def rigid(rotvec, translation):
+        return make_rigid(torch.tensor(Rotation.from_rotvec(rotvec).as_matrix()), torch.tensor(translation))
+
+    pose = rigid([0.3, -0.2, 0.9], [0.1, 0.2, 0.3])
+    torch.testing.assert_close(mean_rigid(pose.expand(3, 4, 4), dim=0), pose)
+    pair = torch.stack([rigid([0.0, 0.0, 0.4], [0.0, 0.0, 0.0]), rigid([0.0, 0.0, -0.4], [0.2, 0.4, 0.0])])
+    torch.testing.assert_close(mean_rigid(pair, dim=0), rigid([0.0, 0.0, 0.0], [0.1, 0.2, 0.0]))
+    samples = torch.stack([rigid(rng.normal(0, 0.3, 3), rng.normal(0, 0.05, 3)) for _ in range(12)]).reshape(2, 6, 4, 4)
+    mean = mean_rigid(samples, dim=1)
+    assert mean.shape == (2, 4, 4)
+    torch.testing.assert_close(mean[..., :3, :3] @ mean[..., :3, :3].transpose(-1, -2), torch.eye(3).expand(2, 3, 3).double())
+    assert torch.all(torch.det(mean[..., :3, :3]) > 0)
+    G = rigid([1.0, 2.0, -0.5], [0.4, -0.3, 0.2])
+    torch.testing.assert_close(mean_rigid(compose(G, samples), dim=1), compose(G, mean))

@@ -151,6 +151,8 @@ def test_optimizer_and_scheduler_presets():
         ({"max_translation": 0.0}, "max_translation and max_rotation_deg must be positive"),
         ({"replay_init_strength": 0.0}, r"replay_init_strength must lie in \(0, 1\] or be None, got 0.0"),
         ({"replay_init_strength": 1.5}, r"replay_init_strength must lie in \(0, 1\]"),
+        ({"samples_per_prediction": 0}, r"samples_per_prediction must be in 1…64, got 0"),
+        ({"samples_per_prediction": 65}, r"samples_per_prediction must be in 1…64"),
     ],
 )
 def test_invalid_values_are_refused_with_a_clear_message(overrides, message):

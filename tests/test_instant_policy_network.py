@@ -284,6 +284,33 @@ def test_context_is_computed_once_and_reused_by_every_denoising_step(graph):
     torch.testing.assert_close(rotations @ rotations.transpose(-1, -2), torch.eye(3).expand_as(rotations))
 
 
+
+@pytest.mark.parametrize("strength", [1.0, 0.5])
+def test_several_samples_per_prediction_are_the_mean_of_as_many_noise_draws(strength):
+    """``num_samples`` S: each row is sampled S times as one batch of rows repeated S times (the same noise as
+    sampling the repeated context directly, also from a replay guess), and the result is their mean pose per
+    action; the gripper follows the samples wherever they agree; the same seed gives the same result."""
+    from lerobot_instant_policy.geometry.rigid_torch import mean_rigid
+
+    network = _network()
+    context = _context(network, _batch())
+    initial = None if strength == 1.0 else torch.rand(2, 8, 7, generator=torch.Generator().manual_seed(5)) * 2 - 1
+    kwargs = dict(num_inference_steps=4, strength=strength)
+    actions, gripper = network.sample_actions(context, torch.Generator().manual_seed(3), initial=initial,
+                                              num_samples=4, **kwargs)
+    samples, sample_gripper = network.sample_actions(
+        context.repeat_rows(4), torch.Generator().manual_seed(3), **kwargs,
+        initial=None if initial is None else initial.repeat_interleave(4, dim=0))
+    assert actions.shape == (2, 8, 4, 4) and gripper.shape == (2, 8)
+    torch.testing.assert_close(actions, mean_rigid(samples.unflatten(0, (2, 4)), dim=1))
+    sample_gripper = sample_gripper.unflatten(0, (2, 4))
+    agree = (sample_gripper == sample_gripper[:, :1]).all(dim=1)
+    assert agree.any() and torch.equal(gripper[agree], sample_gripper[:, 0][agree])
+    assert not torch.allclose(samples[0], samples[1])  # four different draws, not one
+    again, _ = network.sample_actions(context, torch.Generator().manual_seed(3), initial=initial, num_samples=4,
+                                      **kwargs)
+    torch.testing.assert_close(again, actions)
+
 @pytest.mark.parametrize("num_demos, length", [(1, 2), (1, 5), (3, 2), (5, 12)])
 def test_variable_number_and_length_of_demonstrations(num_demos, length):
     network = _network()

@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--L", type=_int_list, default=[2, 5, 10, 15], help="waypoints per demonstration")
     parser.add_argument("--default", type=_int_list, default=[DEFAULT_K, DEFAULT_N, DEFAULT_L],
                         help="the K,N,L held while another varies (default 4,2,10)")
+    parser.add_argument("--samples-per-prediction", type=int,
+                        help="predict the mean of this many samples (the policy's samples_per_prediction; default: "
+                             "the checkpoint's)")
     parser.add_argument("--no-untrained", action="store_true", help="skip the freshly initialised reference")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
@@ -54,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         result = action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed, args.K,
-                              args.N, args.L, tuple(args.default), not args.no_untrained, args.repo_id, args.device)
+                              args.N, args.L, tuple(args.default), not args.no_untrained, args.repo_id, args.device,
+                              args.samples_per_prediction)
     except (ActionErrorError, EvaluationError, DemonstrationError, FileNotFoundError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2

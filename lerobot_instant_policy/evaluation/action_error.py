@@ -25,7 +25,8 @@ order above, the last task taking the first's) relabelled as this task's. **Cont
 for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores its demonstrations.
 
 K is handed to ``predict_action_chunk`` (``num_inference_steps``) at every prediction; the checkpoint's config is
-left as it was loaded.
+left as it was loaded, except ``samples_per_prediction`` when given (every setting and reference then predicts the
+mean of that many samples, drawn from the frame's generator).
 """
 
 from __future__ import annotations
@@ -40,7 +41,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..configuration_instant_policy import SUPPORTED_DEMOS, SUPPORTED_INFERENCE_STEPS, SUPPORTED_WAYPOINTS
+from ..configuration_instant_policy import (
+    MAX_SAMPLES_PER_PREDICTION,
+    SUPPORTED_DEMOS,
+    SUPPORTED_INFERENCE_STEPS,
+    SUPPORTED_WAYPOINTS,
+)
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
 from ..modeling_instant_policy import InstantPolicyPolicy
@@ -237,7 +243,7 @@ def _check_range(name: str, values: list[int], supported: tuple[int, int]) -> No
 def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, frames_per_task: int = 4, seed: int = 0,
                  ks: list[int] = (1, 2, 4, 8), ns: list[int] = (1, 2, 3), ls: list[int] = (2, 5, 10, 15),
                  default: tuple[int, int, int] = (DEFAULT_K, DEFAULT_N, DEFAULT_L), untrained: bool = True,
-                 repo_id: str | None = None, device: str = "cpu") -> dict:
+                 repo_id: str | None = None, device: str = "cpu", samples_per_prediction: int | None = None) -> dict:
     """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` (module docstring).
 
     Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained``, ``hold`` and
@@ -248,8 +254,12 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     _check_range("K (denoising steps)", ks + [default[0]], SUPPORTED_INFERENCE_STEPS)
     _check_range("N (demonstrations)", ns + [default[1]], SUPPORTED_DEMOS)
     _check_range("L (waypoints)", ls + [default[2]], SUPPORTED_WAYPOINTS)
+    if samples_per_prediction is not None:
+        _check_range("samples per prediction", [samples_per_prediction], (1, MAX_SAMPLES_PER_PREDICTION))
     start = time.perf_counter()
     policy = load_policy(policy_path, device)
+    if samples_per_prediction is not None:
+        policy.config = dataclasses.replace(policy.config, samples_per_prediction=samples_per_prediction)
     config = policy.config
     held_out = load_held_out_tasks(root, tasks, frames_per_task, config.horizon, seed, repo_id)
     fewest = min(len(task.demos) for task in held_out)
@@ -268,6 +278,7 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
         "tasks": len(held_out), "frames_per_task": frames_per_task,
         "frames": sum(len(task.frames) for task in held_out), "horizon_T": config.horizon, "seed": seed,
         "checkpoint_defaults": {"K": config.inference_steps, "N": config.num_demos, "L": config.num_waypoints},
+        "samples_per_prediction": config.samples_per_prediction,
         "default": dict(zip("KNL", default)),
         "settings": evaluate_settings(policy, held_out, settings),
     }

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 
+import roma
 import torch
 
 _AUTOCAST_DEVICES = ("cpu", "cuda")
@@ -76,3 +77,12 @@ def fit_rigid(source: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor,
     U = torch.cat([U[..., :2], U[..., 2:] * reflection[..., None, None]], dim=-1)
     R = (U @ Vh).to(source.dtype)
     return R, (target_mean - source_mean @ R.transpose(-1, -2)).squeeze(-2)
+
+
+@full_precision()
+def mean_rigid(T: torch.Tensor, dim: int) -> torch.Tensor:
+    """The mean of rigid transforms ``(..., 4, 4)`` over batch dimension ``dim``: the mean translation, and the
+    chordal L2 mean rotation (the rotation nearest in Frobenius norm to the mean rotation matrix,
+    ``roma.special_procrustes``). Left-multiplying every transform by one rigid ``G`` multiplies the mean by ``G``."""
+    rotation = roma.special_procrustes(T[..., :3, :3].mean(dim=dim))
+    return make_rigid(rotation, T[..., :3, 3].mean(dim=dim))

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import nn
 
-from ..geometry.rigid_torch import full_precision, invert_rigid, transform_points
+from ..geometry.rigid_torch import full_precision, invert_rigid, mean_rigid, transform_points
 from .action_diffusion import FLOW_DIM, ActionDiffusion, points_in_action_frames
 from .dense_graphs import DenseGraphs
 from .encodings import encoding_dim, sinusoidal_encoding
@@ -486,14 +486,23 @@ class InstantPolicyNetwork(nn.Module):
         num_inference_steps: int | None = None,
         initial: torch.Tensor | None = None,
         strength: float = 1.0,
+        num_samples: int = 1,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """DDIM-sample the actions, from pure noise or from a noised guess ``initial (B, T, 7)`` (the diffusion
         variable of :meth:`ActionDiffusion.normalize`) with ``strength`` (:meth:`ActionDiffusion.sample`).
+
+        With ``num_samples`` S > 1 (beyond the paper, issue 30.4) each row is sampled S times from S noise draws, as
+        one batch of ``B · S`` rows, and the samples are averaged: per action the mean pose
+        (:func:`~..geometry.rigid_torch.mean_rigid`: mean translation, chordal mean rotation) and the sign of the
+        mean gripper variable. S = 1 is the paper's single sample.
 
         Returns:
             ``T_ee_actions (B, T, 4, 4)``: action poses in the current EE frame; ``gripper_open (B, T)`` in {0, 1}.
         """
         steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
+        if num_samples > 1:
+            context = context.repeat_rows(num_samples)
+            initial = None if initial is None else initial.repeat_interleave(num_samples, dim=0)
         with fixed_weights(self):
             sample = self.diffusion.sample(
                 lambda T_noisy, gripper, timesteps: self._denoise_to_values(context, T_noisy, gripper, timesteps),
@@ -506,4 +515,7 @@ class InstantPolicyNetwork(nn.Module):
                 strength=strength,
             )
         T_ee_actions, gripper = self.diffusion.unnormalize(sample)
+        if num_samples > 1:
+            T_ee_actions = mean_rigid(T_ee_actions.unflatten(0, (-1, num_samples)), dim=1)
+            gripper = gripper.unflatten(0, (-1, num_samples)).mean(dim=1)
         return T_ee_actions, (gripper > 0).to(sample.dtype)
