@@ -132,3 +132,14 @@ def test_env_benchmark_times_steps_observations_and_a_video_frame_per_render_siz
     with pytest.raises(SystemExit):
         main(["env", "--video-sizes", "0"])
     assert "--video-sizes must be positive" in capsys.readouterr().err
+
+
+def test_inference_benchmark_times_the_mean_of_several_samples(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    assert main(["inference", "--repeats", "1", "--samples-per-prediction", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["samples_per_prediction"] == 3 and result["ms_per_control_step"] > 0
+    with pytest.raises(SystemExit):
+        main(["inference", "--samples-per-prediction", "0"])
+    assert "--samples-per-prediction must be positive" in capsys.readouterr().err

@@ -113,6 +113,7 @@ def bench_inference(
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
         "dense_attention": config.dense_attention, "compile_inference": config.compile_inference,
         "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
+        "samples_per_prediction": config.samples_per_prediction,
         "points": config.num_points, "batch": 1,
         "parameters": sum(parameter.numel() for parameter in policy.parameters()),
         "ms_per_control_step": round(1000 * statistics.median(times), 1),

@@ -150,6 +150,8 @@ def _add_inference(commands) -> None:
                                 "false); the first control step, which compiles, is reported as warmup_s")
     inference.add_argument("--compare-compile-inference", action="store_true",
                            help="time compiled and eager sampling in alternation and report the ratio")
+    inference.add_argument("--samples-per-prediction", type=int,
+                           help="predict the mean of this many samples (--policy.samples_per_prediction; default 1)")
     inference.add_argument("--json", action="store_true", help=_JSON_HELP)
     inference.set_defaults(handler=_run_inference)
 
@@ -161,6 +163,10 @@ def _run_inference(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     settings = _variant_settings(args)
     if args.compile_inference is not None:
         settings["compile_inference"] = args.compile_inference == "true"
+    if args.samples_per_prediction is not None:
+        if args.samples_per_prediction <= 0:
+            parser.error("--samples-per-prediction must be positive")
+        settings["samples_per_prediction"] = args.samples_per_prediction
     from ..benchmarks.policy import inference_benchmark
 
     return inference_benchmark(args.preset, args.repeats, args.policy_path, compare, **settings)

@@ -257,9 +257,8 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     if samples_per_prediction is not None:
         _check_range("samples per prediction", [samples_per_prediction], (1, MAX_SAMPLES_PER_PREDICTION))
     start = time.perf_counter()
-    policy = load_policy(policy_path, device)
-    if samples_per_prediction is not None:
-        policy.config = dataclasses.replace(policy.config, samples_per_prediction=samples_per_prediction)
+    overrides = {} if samples_per_prediction is None else {"samples_per_prediction": samples_per_prediction}
+    policy = load_policy(policy_path, device, **overrides)
     config = policy.config
     held_out = load_held_out_tasks(root, tasks, frames_per_task, config.horizon, seed, repo_id)
     fewest = min(len(task.demos) for task in held_out)
