@@ -109,7 +109,7 @@ def test_samples_per_prediction_reaches_every_prediction_from_the_command_line(h
     monkeypatch.setattr(InstantPolicyNetwork, "sample_actions",
                         lambda self, *a, **k: counts.append(k["num_samples"]) or sample(self, *a, **k))
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--tasks", "2",
-                              "--frames-per-task", "1", "--K", "2", "--N", "2", "--L", "10", "--default", "2,2,10",
+                              "--frames-per-task", "1", "--K", "1", "--N", "2", "--L", "10", "--default", "1,2,10",
                               "--no-untrained", "--samples-per-prediction", "3"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["samples_per_prediction"] == 3 and counts == [3] * 4  # 2 frames own, 2 swapped
