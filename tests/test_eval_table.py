@@ -116,3 +116,26 @@ def test_bad_inputs_are_reported(tmp_path, capsys):
     (tmp_path / "bad" / "eval_info.json").write_text(json.dumps({"overall": {}}))
     assert main([str(tmp_path / "bad"), "--out", str(tmp_path / "t")]) == 2
     assert "no 'per_task' list" in capsys.readouterr().err
+
+
+def test_an_earlier_tables_rows_join_new_runs(runs, tmp_path, capsys):
+    """``POLICY=TABLE.json`` reads that policy's rows of a table written earlier (elsewhere), pooled with new runs
+    as if its runs were here; without a prefix every row under its own name; a file that is no table, or has no row
+    of the policy, is refused."""
+    earlier = tmp_path / "earlier"
+    assert main([f"demo_replay={runs / 'replay'}", f"instant_policy={runs / 'ip'}", "--out", str(earlier)]) == 0
+    capsys.readouterr()
+    write_eval_info(tmp_path / "new_ip", "open_drawer", [True, False])
+    assert main([f"demo_replay={earlier}.json", f"instant_policy={tmp_path / 'new_ip'}", "--out",
+                 str(tmp_path / "joined"), "--json"]) == 0
+    rows = {(row["task"], row["policy"]): row for row in json.loads(capsys.readouterr().out)["rows"]}
+    assert set(rows) == {("pick_and_lift", "demo_replay"), ("open_drawer", "demo_replay"),
+                         ("open_drawer", "instant_policy")}
+    assert (rows[("pick_and_lift", "demo_replay")]["episodes"], rows[("pick_and_lift", "demo_replay")]["successes"]) == (4, 3)
+    assert main([f"{earlier}.json", "--out", str(tmp_path / "all"), "--json"]) == 0
+    assert {row["policy"] for row in json.loads(capsys.readouterr().out)["rows"]} == {"demo_replay", "instant_policy"}
+    assert main([f"do_nothing={earlier}.json", "--out", str(tmp_path / "t")]) == 2
+    assert "no rows of policy 'do_nothing'" in capsys.readouterr().err
+    (tmp_path / "other.json").write_text(json.dumps({"per_task": []}))
+    assert main([str(tmp_path / "other.json"), "--out", str(tmp_path / "t")]) == 2
+    assert "is not a success table" in capsys.readouterr().err

@@ -2,6 +2,9 @@
 Wilson 95% intervals, as text or JSON on stdout and as OUT.json and OUT.png (``evaluation.success_table``).
 
     lerobot-ip-eval-table instant_policy=outputs/eval_suite/runs/instant_policy demo_replay=outputs/eval_suite/runs/demo_replay
+    lerobot-ip-eval-table instant_policy=outputs/eval_suite/runs/instant_policy demo_replay=docs/results_suite_protocol.json
+
+(the second reads ``demo_replay``'s rows of a table written earlier, e.g. on another machine).
 """
 
 from __future__ import annotations
@@ -20,7 +23,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Success table of lerobot-eval runs with Wilson 95% intervals (text or JSON on stdout, JSON and "
                     "PNG files).",
     )
-    parser.add_argument("paths", nargs="+", help="[POLICY=]DIR: a lerobot-eval output dir or a parent of several")
+    parser.add_argument("paths", nargs="+",
+                        help="[POLICY=]DIR: a lerobot-eval output dir or a parent of several; or [POLICY=]TABLE.json: "
+                             "the rows of an earlier table (those of POLICY only, when given)")
     parser.add_argument("--policy", default=None, help="policy name for paths without a POLICY= prefix")
     parser.add_argument("--env-type", default=DEFAULT_ENV_TYPE, help="env type lerobot-eval ran (default: %(default)s)")
     parser.add_argument("--out", default="eval_table", help="writes OUT.json and OUT.png (default: %(default)s)")

@@ -129,18 +129,45 @@ def read_eval_info(eval_info: Path, policy: str | None, env_type: str) -> list[S
     return results
 
 
+def read_table_rows(table: Path, policy: str | None) -> list[SuccessCount]:
+    """The per-task rows of a table this module wrote (``OUT.json``), those of ``policy`` only when given: the
+    counts of runs evaluated elsewhere (another machine or session). ``ValueError`` when it is no such table or has
+    no row of ``policy``."""
+    try:
+        rows = json.loads(table.read_text()).get("rows")
+    except (json.JSONDecodeError, AttributeError) as error:
+        raise ValueError(f"{table} is not a success table (lerobot-ip-eval-table's OUT.json): {error}") from error
+    keys = ("task", "policy", "episodes", "successes")
+    if not isinstance(rows, list) or not all(isinstance(row, dict) and all(key in row for key in keys) for row in rows):
+        raise ValueError(f"{table} is not a success table: it needs a 'rows' list of {', '.join(keys)}")
+    results = [SuccessCount(str(row["task"]), str(row["policy"]), int(row["episodes"]), int(row["successes"]))
+               for row in rows if policy is None or row["policy"] == policy]
+    if not results:
+        raise ValueError(f"{table} has no rows of policy {policy!r}")
+    return results
+
+
 def collect_results(paths: list[str], default_policy: str | None, env_type: str) -> list[SuccessCount]:
-    """Pooled counts per (task, policy) over every ``[POLICY=]PATH``, sorted by task then policy."""
+    """Pooled counts per (task, policy) over every ``[POLICY=]PATH``, sorted by task then policy. A PATH is a
+    lerobot-eval output directory (or a parent of several, or its ``eval_info.json``), or an earlier table's
+    ``.json`` (:func:`read_table_rows`: its rows of POLICY, all of them without a prefix, under their own names)."""
     pooled: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0])
     for argument in paths:
         label, separator, path_text = argument.partition("=")
         if not separator:
             label, path_text = "", argument
-        for eval_info in find_eval_infos(Path(path_text)):
-            for result in read_eval_info(eval_info, label or default_policy, env_type):
-                counts = pooled[(result.task, result.policy)]
-                counts[0] += result.episodes
-                counts[1] += result.successes
+        path = Path(path_text)
+        if path.suffix == ".json" and path.name != EVAL_INFO:
+            if not path.is_file():
+                raise FileNotFoundError(f"{path} does not exist")
+            results = read_table_rows(path, label or None)
+        else:
+            results = [result for eval_info in find_eval_infos(path)
+                       for result in read_eval_info(eval_info, label or default_policy, env_type)]
+        for result in results:
+            counts = pooled[(result.task, result.policy)]
+            counts[0] += result.episodes
+            counts[1] += result.successes
     return [SuccessCount(task, policy, episodes, successes)
             for (task, policy), (episodes, successes) in sorted(pooled.items())]
 
