@@ -133,9 +133,11 @@ perception-eval: $(INSTALLED)
 # context swap); then the table with Wilson 95% intervals, grouped by task family. Then the K / N / L study.
 # lerobot-eval renders a video frame after every step of its first 10 episodes: at 64 px instead of the env's 256 one
 # frame takes about a tenth of the time (lerobot-ip-bench env), and the frames never enter the success figures.
+# Beside the faithful path: the two options beyond the paper (samples_per_prediction, the replay prior per object) and
+# demo_replay per object. SUITE_ARGS=--resume continues an interrupted run (cells of the same settings are kept).
 CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy
 SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo-sets 3 --out outputs/results/suite \
-	--env-arg render_size=64
+	--env-arg render_size=64 $(SUITE_ARGS)
 STUDY = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy instant_policy --policy-path $(CKPT) \
 	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --out outputs/results/study --env-arg render_size=64
 STUDY_TASKS ?= push_button,open_drawer
@@ -144,11 +146,14 @@ results: results-suite results-study
 results-suite: $(INSTALLED)
 	$(SUITE) --policy instant_policy --policy-path $(CKPT)
 	$(SUITE) --policy instant_policy --policy-path $(CKPT) --swap
+	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg samples_per_prediction=8 --run-name instant_policy_S8
+	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg replay_init_strength=0.25 \
+		--policy-arg replay_per_object=true --run-name ip_per_object_s025
 	$(SUITE) --policy demo_replay
+	$(SUITE) --policy demo_replay --policy-arg registration_per_object=true --run-name demo_replay_per_object
 	$(SUITE) --policy do_nothing
-	$(VENV)/bin/lerobot-ip-eval-table instant_policy=outputs/results/suite/runs/instant_policy \
-		instant_policy-swap=outputs/results/suite/runs/instant_policy-swap \
-		demo_replay=outputs/results/suite/runs/demo_replay do_nothing=outputs/results/suite/runs/do_nothing \
+	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,instant_policy instant_policy-swap instant_policy_S8 \
+		ip_per_object_s025 demo_replay demo_replay_per_object do_nothing,$(run)=outputs/results/suite/runs/$(run)) \
 		--out docs/results_suite
 
 results-study: $(INSTALLED)
