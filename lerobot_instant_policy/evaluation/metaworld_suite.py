@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..sim.metaworld.configuration_metaworld import MT10_TASKS
-from .suite import DEMO_SET_STRIDE, SuiteError, check_seeds, demo_root, run_lerobot_eval, swap_source
+from .suite import DEMO_SET_STRIDE, SuiteError, cell_dir, check_seeds, demo_root, run_lerobot_eval, swap_source
 
 POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
 DEMONSTRATION_POLICIES = ("instant_policy", "demo_replay")
@@ -104,7 +104,7 @@ def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0, sou
     if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
         record_expert_demos(source or task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
                             label=task, episode_length=settings.episode_length)
-    output_dir = settings.runs_dir / task / f"set-{demo_set}"
+    output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     return run_lerobot_eval(command, settings.runs_dir, task, demo_set)
 

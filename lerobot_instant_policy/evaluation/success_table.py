@@ -151,7 +151,7 @@ def collect_results(paths: list[str], default_policy: str | None, env_type: str)
     """Pooled counts per (task, policy) over every ``[POLICY=]PATH``, sorted by task then policy. A PATH is a
     lerobot-eval output directory (or a parent of several, or its ``eval_info.json``), or an earlier table's
     ``.json`` (:func:`read_table_rows`: its rows of POLICY, all of them without a prefix, under their own names)."""
-    pooled: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0])
+    results = []
     for argument in paths:
         label, separator, path_text = argument.partition("=")
         if not separator:
@@ -160,16 +160,11 @@ def collect_results(paths: list[str], default_policy: str | None, env_type: str)
         if path.suffix == ".json" and path.name != EVAL_INFO:
             if not path.is_file():
                 raise FileNotFoundError(f"{path} does not exist")
-            results = read_table_rows(path, label or None)
+            results += read_table_rows(path, label or None)
         else:
-            results = [result for eval_info in find_eval_infos(path)
-                       for result in read_eval_info(eval_info, label or default_policy, env_type)]
-        for result in results:
-            counts = pooled[(result.task, result.policy)]
-            counts[0] += result.episodes
-            counts[1] += result.successes
-    return [SuccessCount(task, policy, episodes, successes)
-            for (task, policy), (episodes, successes) in sorted(pooled.items())]
+            results += [result for eval_info in find_eval_infos(path)
+                        for result in read_eval_info(eval_info, label or default_policy, env_type)]
+    return sorted(pool(results, lambda task: task), key=lambda result: (result.task, result.policy))
 
 
 def pool(results: list[SuccessCount], name_of: Callable[[str], str]) -> list[SuccessCount]:

@@ -174,18 +174,23 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     demos = demo_root(settings.out, task, settings.num_demos, seed, settings.obs_type, source)
     if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
         record_demonstrations(settings, task, demos, seed, source or task)
-    output_dir = settings.runs_dir / task / f"set-{demo_set}"
+    output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     run_lerobot_eval(command, settings.runs_dir, task, demo_set)
     (output_dir / CELL_FILE).write_text(json.dumps(cell_record(settings, source), indent=2) + "\n")
     return output_dir
 
 
+def cell_dir(runs_dir: Path, task: str, demo_set: int) -> Path:
+    """``runs_dir/<task>/set-<demo_set>``: the ``lerobot-eval`` output directory of one task and demonstration set."""
+    return runs_dir / task / f"set-{demo_set}"
+
+
 def run_lerobot_eval(command: list[str], runs_dir: Path, task: str, demo_set: int) -> Path:
     """Run ``command`` (a ``lerobot-eval`` call writing to ``runs_dir/<task>/set-<demo_set>``, emptied first) and
     return that directory; a ``SuiteError`` with the output's tail when it fails, the whole output kept in
     ``runs_dir/<task>-set-<demo_set>.log``."""
-    output_dir = runs_dir / task / f"set-{demo_set}"
+    output_dir = cell_dir(runs_dir, task, demo_set)
     if output_dir.exists():
         shutil.rmtree(output_dir)
     completed = subprocess.run(command, capture_output=True, text=True)
@@ -211,7 +216,7 @@ def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str],
         with_demos = f" with {source}'s demonstrations" if source else ""
         for demo_set in range(settings.demo_sets):
             if (task, demo_set) in kept:
-                runs.append(settings.runs_dir / task / f"set-{demo_set}")
+                runs.append(cell_dir(settings.runs_dir, task, demo_set))
                 report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
                 continue
             started = time.perf_counter()
@@ -238,7 +243,7 @@ def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> se
     for task, source in sources.items():
         expected = cell_record(settings, source)
         for demo_set in range(settings.demo_sets):
-            cell = settings.runs_dir / task / f"set-{demo_set}"
+            cell = cell_dir(settings.runs_dir, task, demo_set)
             if not (cell / "eval_info.json").is_file():
                 continue
             if not (cell / CELL_FILE).is_file():
