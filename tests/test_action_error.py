@@ -57,6 +57,8 @@ def test_action_error_structure_determinism_and_k(held_out_root, monkeypatch):
     assert (first["swap"]["translation_mm"], first["swap"]["rotation_deg"]) != (rows[4]["translation_mm"],
                                                                               rows[4]["rotation_deg"])
     assert first["context_gain"]["translation"] == round(first["swap"]["translation_mm"] / rows[4]["translation_mm"], 3)
+    assert set(first["phases"]) == set(ae.PHASES)
+    assert sum(row["frames"] for row in first["phases"].values()) == first["frames"]
     json.dumps(first)
 
 
@@ -127,3 +129,30 @@ def test_bad_inputs_give_clear_errors(held_out_root, tmp_path, capsys):
         _run(held_out_root, ks=[0])
     code = action_error_main(["--policy-path", str(SHIPPED), "--root", str(tmp_path / "missing"), "--json"])
     assert code == 2 and "does not exist" in capsys.readouterr().err
+
+
+def test_phases_split_the_live_episodes_into_thirds_and_pool_back_to_the_whole(held_out_root):
+    tasks = ae.load_held_out_tasks(held_out_root, num_tasks=2, frames_per_task=10_000, horizon=8, seed=0,
+                                   repo_id="local/val")
+    for held in tasks:  # every frame of the live episode: thirds in order, sizes within one frame of each other
+        phases = [frame.phase for frame in held.frames]
+        assert [frame.t for frame in held.frames] == list(range(len(phases)))
+        assert phases == sorted(phases) and set(phases) == {0, 1, 2}
+        assert max(phases.count(p) for p in range(3)) - min(phases.count(p) for p in range(3)) <= 1
+    hold = ae.hold_reference(tasks)
+    by_phase = hold["by_phase"]
+    assert sum(row["frames"] for row in by_phase.values()) == hold["frames"]
+    pooled = sum(row["frames"] * row["translation_mm"] for row in by_phase.values()) / hold["frames"]
+    assert pooled == pytest.approx(hold["translation_mm"], abs=0.01)
+
+
+def test_phase_table_compares_own_hold_and_swap_per_third():
+    def row(*mm):
+        return {"by_phase": {name: {"translation_mm": value, "frames": 5 if value is not None else 0}
+                             for name, value in zip(ae.PHASES, mm)}}
+
+    table = ae.phase_table(row(10.0, 20.0, None), row(40.0, 20.0, None), row(30.0, 30.0, None))
+    assert table["first_third"] == {"frames": 5, "own_mm": 10.0, "hold_mm": 40.0, "swap_mm": 30.0,
+                                    "over_hold": 0.25, "context_gain": 3.0}
+    assert table["middle_third"]["over_hold"] == 1.0 and table["middle_third"]["context_gain"] == 1.5
+    assert table["last_third"]["frames"] == 0 and table["last_third"]["over_hold"] is None

@@ -23,6 +23,8 @@ checkpoint before training), "hold": predicting the current state for every hori
 **context swap**: the same checkpoint, frames and noise, with the demonstrations of the *next* pseudo-task (in the
 order above, the last task taking the first's) relabelled as this task's. **Context gain** = swap error / own error,
 for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores its demonstrations.
+The default setting's translation error, holding still's and the swap's are also given per third of the live
+episodes (``phases``: the approach, the middle, the end), to show where along a task the demonstrations are read.
 
 K is handed to ``predict_action_chunk`` (``num_inference_steps``) at every prediction; the checkpoint's config is
 left as it was loaded, except ``samples_per_prediction`` when given (every setting and reference then predicts the
@@ -54,6 +56,7 @@ from .checkpoints import load_policy
 from .loss_curve import check_pseudo_demo_root
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
+PHASES = ("first_third", "middle_third", "last_third")
 
 
 class ActionErrorError(ValueError):
@@ -63,13 +66,15 @@ class ActionErrorError(ValueError):
 @dataclasses.dataclass
 class LiveFrame:
     """One evaluated frame: ``points (P, 3)`` and ``state (8,)`` of the live episode at frame ``t`` (world frame),
-    ``target (T, 8)`` its actions t … t+T−1 (held at the last one), ``noise_seed`` of its DDIM generator."""
+    ``target (T, 8)`` its actions t … t+T−1 (held at the last one), ``noise_seed`` of its DDIM generator, and
+    ``phase``, the third of the live episode that ``t`` lies in (0, 1, 2: :data:`PHASES`)."""
 
     t: int
     points: np.ndarray
     state: np.ndarray
     target: np.ndarray
     noise_seed: int
+    phase: int
 
 
 @dataclasses.dataclass
@@ -98,9 +103,11 @@ def chunk_errors(predicted: np.ndarray, target: np.ndarray) -> dict[str, np.ndar
     return {"translation_mm": translation, "rotation_deg": rotation, "gripper_correct": gripper}
 
 
-def summarise(errors: list[dict[str, np.ndarray]]) -> dict:
+def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = None) -> dict:
     """Means over all frames and horizon steps of :func:`chunk_errors` results (one per frame, each ``(T,)``), the
-    first horizon step's mean translation error, and standard errors over frames (``*_sem``)."""
+    first horizon step's mean translation error, and standard errors over frames (``*_sem``); with ``phases`` (each
+    frame's :attr:`LiveFrame.phase`), ``by_phase``: the mean translation error (mm) and frame count of each third of
+    the live episodes."""
     translation = np.concatenate([e["translation_mm"].ravel() for e in errors])
     rotation = np.concatenate([e["rotation_deg"].ravel() for e in errors])
     gripper = np.concatenate([e["gripper_correct"].ravel() for e in errors])
@@ -110,7 +117,7 @@ def summarise(errors: list[dict[str, np.ndarray]]) -> dict:
         per_frame = np.array([e[key].mean() for e in errors])
         return round(float(per_frame.std(ddof=1) / math.sqrt(len(per_frame))), 3) if len(per_frame) > 1 else 0.0
 
-    return {
+    summary = {
         "translation_mm": round(float(translation.mean()), 3),
         "translation_mm_sem": sem("translation_mm"),
         "translation_mm_first_step": round(float(first.mean()), 3),
@@ -120,6 +127,14 @@ def summarise(errors: list[dict[str, np.ndarray]]) -> dict:
         "frames": len(errors),
         "steps": int(translation.size),
     }
+    if phases is not None:
+        summary["by_phase"] = {
+            name: {"translation_mm": round(float(np.mean([e["translation_mm"].mean() for e in chosen])), 3)
+                   if chosen else None, "frames": len(chosen)}
+            for index, name in enumerate(PHASES)
+            for chosen in [[e for e, phase in zip(errors, phases, strict=True) if phase == index]]
+        }
+    return summary
 
 
 # ---------------------------------------------------------------------------------------------------- data
@@ -153,7 +168,8 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
         for t in chosen.tolist():
             steps = np.minimum(np.arange(t, t + horizon), live.num_frames - 1)
             noise_seed = int(np.random.SeedSequence([seed, task_number, t]).generate_state(1)[0])
-            frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed))
+            phase = min(len(PHASES) - 1, len(PHASES) * t // live.num_frames)
+            frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed, phase))
         held_out.append(HeldOutTask(task, episodes[-1], demos, frames))
     return held_out
 
@@ -187,20 +203,22 @@ def evaluate_settings(policy: InstantPolicyPolicy, tasks: list[HeldOutTask],
                 seconds[(k, n, l)] += time.perf_counter() - start
                 errors[(k, n, l)] += [chunk_errors(p, f.target.astype(np.float64))
                                       for p, f in zip(predictions, held_out.frames)]
+    phases = [frame.phase for held_out in tasks for frame in held_out.frames]
     results = []
     for setting in settings:
         k, n, l = setting
         frames = len(errors[setting])
-        results.append({"K": k, "N": n, "L": l, **summarise(errors[setting]),
+        results.append({"K": k, "N": n, "L": l, **summarise(errors[setting], phases),
                         "ms_per_prediction": round(1000 * seconds[setting] / frames, 1)})
     return results
 
 
 def hold_reference(tasks: list[HeldOutTask]) -> dict:
     """Errors of predicting the current state ``(8,)`` for every horizon step (no model)."""
+    frames = [f for held in tasks for f in held.frames]
     errors = [chunk_errors(np.repeat(f.state[None].astype(np.float64), len(f.target), axis=0),
-                           f.target.astype(np.float64)) for held in tasks for f in held.frames]
-    return summarise(errors)
+                           f.target.astype(np.float64)) for f in frames]
+    return summarise(errors, [f.phase for f in frames])
 
 
 def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
@@ -226,6 +244,21 @@ def context_gain(own: dict, swap: dict) -> dict:
     }
 
 
+def phase_table(own: dict, hold: dict, swap: dict) -> dict:
+    """Per third of the live episodes (``by_phase`` of three :func:`summarise` results at one setting): frames, the
+    translation error (mm) with the checkpoint's own demonstrations, holding still and the context swap, own / hold
+    and the context gain (swap / own)."""
+    def ratio(numerator: float | None, denominator: float | None) -> float | None:
+        return round(numerator / denominator, 3) if numerator is not None and denominator else None
+
+    table = {}
+    for name in PHASES:
+        own_mm, hold_mm, swap_mm = (row["by_phase"][name]["translation_mm"] for row in (own, hold, swap))
+        table[name] = {"frames": own["by_phase"][name]["frames"], "own_mm": own_mm, "hold_mm": hold_mm,
+                       "swap_mm": swap_mm, "over_hold": ratio(own_mm, hold_mm), "context_gain": ratio(swap_mm, own_mm)}
+    return table
+
+
 def grid(ks: list[int], ns: list[int], ls: list[int], default: tuple[int, int, int]) -> list[tuple[int, int, int]]:
     """(K, N, L) settings varying one parameter at a time around ``default`` (which appears once, first)."""
     k0, n0, l0 = default
@@ -247,7 +280,9 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` (module docstring).
 
     Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained``, ``hold`` and
-    ``swap`` references at the default setting, ``context_gain`` (swap / own error at the default setting), the dataset and sample description and the wall time. Raises
+    ``swap`` references at the default setting, ``context_gain`` (swap / own error at the default setting),
+    ``phases`` (:func:`phase_table`: the same three per third of the live episodes), the dataset and sample
+    description and the wall time. Raises
     ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad input (N ≥ demos per task, …).
     """
     ks, ns, ls, default = list(ks), list(ns), list(ls), tuple(default)
@@ -289,6 +324,7 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
             fresh = InstantPolicyPolicy(dataclasses.replace(policy.config)).to(device).eval()
         result["untrained"] = evaluate_settings(fresh, held_out, [default])[0]
     result["hold"] = hold_reference(held_out)
+    result["phases"] = phase_table(result["settings"][0], result["hold"], result["swap"])
     result["wall_s"] = round(time.perf_counter() - start, 1)
     return result
 
