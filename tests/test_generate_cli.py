@@ -326,6 +326,55 @@ def test_shared_layout_fraction_mixes_one_layout_and_moved_object_tasks_without_
         assert not (tmp_path / "bad").exists()
 
 
+def test_layout_shift_moves_the_objects_that_fraction_of_the_way_to_the_independent_draw(tmp_path, capsys):
+    """``--layout-shift 0.25``: every later demonstration places each object a quarter of the way from its pose in
+    the task's first demonstration towards a fresh draw: exactly a quarter of the way to where the same seed without
+    the setting (the paper's independent draw) puts it where both drew the same layout (a task's second
+    demonstration, unless a scene attempt was rejected in one run only: the draws after a rendered cloud differ with
+    its size), and never further than a quarter of the table's placement range; the first demonstrations are unchanged. The plan records
+    the setting only when it differs from the paper's (so generations written before it existed still resume); a
+    shift outside [0, 1] is refused before anything is written."""
+    from lerobot_instant_policy.pseudo_demos.replay import DemoConfig
+
+    runs = {}
+    for name, extra in (("shifted", ["--layout-shift", "0.25"]), ("moved", [])):
+        out = tmp_path / name
+        assert _generate(out, "--family", "reach", "--num-tasks", "4", "--demos-per-task", "3", "--seed", "9",
+                         *extra) == 0
+        runs[name] = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
+
+    def position_and_yaw(T):
+        T = np.asarray(T)
+        return T[:2, 3], np.arctan2(T[1, 0], T[0, 0])
+
+    ranges = DemoConfig()
+    reach = np.hypot(np.ptp(ranges.object_x_range), np.ptp(ranges.object_y_range)) * 0.25
+    matches = checked = 0
+    for index in range(0, len(runs["moved"]), 3):
+        first, moved, shifted = runs["moved"][index], runs["moved"][index: index + 3], runs["shifted"][index: index + 3]
+        assert shifted[0]["T_world_objects"] == first["T_world_objects"]
+        for number, (drawn, demo) in enumerate(zip(moved[1:], shifted[1:])):
+            checked += number == 0
+            quarter = True
+            for T_first, T_drawn, T_shifted in zip(first["T_world_objects"], drawn["T_world_objects"],
+                                                   demo["T_world_objects"]):
+                (p0, yaw0), (p1, yaw1), (p, yaw) = map(position_and_yaw, (T_first, T_drawn, T_shifted))
+                assert np.linalg.norm(p - p0) <= reach + 1e-6
+                turn = (yaw1 - yaw0 + np.pi) % (2 * np.pi) - np.pi
+                quarter &= bool(np.allclose(p, p0 + 0.25 * (p1 - p0), atol=1e-5)  # poses recorded to 6 decimals
+                                and abs((yaw - yaw0 - 0.25 * turn + np.pi) % (2 * np.pi) - np.pi) < 1e-4)
+            matches += quarter and number == 0
+    assert matches >= checked / 2, (matches, checked)
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+
+    assert "layout_shift" not in config_from_args(build_parser().parse_args([])).plan()["demo"]
+    assert config_from_args(build_parser().parse_args(["--layout-shift", "0.5"])).plan()["demo"]["layout_shift"] == 0.5
+    capsys.readouterr()
+    assert _generate(tmp_path / "bad", "--family", "reach", "--num-tasks", "1", "--layout-shift", "1.5") == 2
+    assert "demo.layout_shift must lie in [0, 1]" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
 def test_layout_angles_out_of_range_fail_clearly_and_write_nothing(tmp_path, capsys):
     config = tmp_path / "bad.json"
     config.write_text(json.dumps({"family": "reach", "demo": {"object_max_yaw_deg": 200.0}}))

@@ -24,6 +24,7 @@ from lerobot_instant_policy.pseudo_demos.replay import (
     hold_signature,
     make_demo,
     sample_layout,
+    shift_layout,
 )
 from lerobot_instant_policy.pseudo_demos.tasks import (
     FAMILIES,
@@ -472,3 +473,20 @@ def test_layout_yaw_and_start_roll_ranges(objects):
     assert rolls.max() <= 10.0 + 1e-6 and rolls.max() > 8.0
     yaws, rolls = _layout_angles(objects, DemoConfig(start_max_tilt_deg=0.0))
     assert yaws.max() > 170.0 and rolls.max() > 85.0
+
+
+def test_shift_layout_interpolates_position_and_yaw_along_the_shorter_arc():
+    T_from = np.stack([make_pose([0.4, 0.1, 0.0], Rotation.from_euler("z", 170, degrees=True)),
+                       make_pose([0.5, -0.1, 0.0], Rotation.from_euler("z", 10, degrees=True))])
+    T_to = np.stack([make_pose([0.6, -0.1, 0.0], Rotation.from_euler("z", -170, degrees=True)),
+                     make_pose([0.5, 0.1, 0.0], Rotation.from_euler("z", 50, degrees=True))])
+    assert np.array_equal(shift_layout(T_from, T_to, 0.0), T_from)
+    np.testing.assert_allclose(shift_layout(T_from, T_to, 1.0), T_to, atol=1e-12)
+    half = shift_layout(T_from, T_to, 0.5)
+    np.testing.assert_allclose(half[:, :3, 3], [[0.5, 0.0, 0.0], [0.5, 0.0, 0.0]], atol=1e-12)
+    yaws = np.degrees(np.arctan2(half[:, 1, 0], half[:, 0, 0]))
+    np.testing.assert_allclose(np.abs(yaws[0]), 180.0, atol=1e-9)  # across ±180°, not back through 0°
+    np.testing.assert_allclose(yaws[1], 30.0, atol=1e-9)
+    for T in half:  # still proper poses turned about the vertical only
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+        np.testing.assert_allclose(T[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)

@@ -113,8 +113,23 @@ def test_the_one_layout_fraction_anneals_over_the_rounds_and_the_last_entry_repe
                          str(run / "rounds" / "round-001"): "0.0", str(run / "rounds" / "round-002"): "0.0"}
 
 
+def test_the_layout_shift_grows_over_the_rounds_and_an_unset_schedule_keeps_older_runs_resumable(tmp_path, capsys):
+    """``--layout-shifts 0.25 1``: round 0 moves the objects a quarter of the way, later rounds draw them anew; the
+    validation set keeps the generation config's setting. A run without the schedule keeps the plan it had before
+    the setting existed, so its saved state still resumes."""
+    assert main(["--out", str(tmp_path / "run"), *TINY, "--rounds", "3", "--layout-shifts", "0.25", "1",
+                 "--dry-run"]) == 0
+    generations = [argv for _, argv in _commands(capsys.readouterr().out) if _name(argv) == "lerobot-ip-generate"]
+    shifts = {Path(argv[argv.index("--out") + 1]).name: argv[argv.index("--layout-shift") + 1]
+              if "--layout-shift" in argv else None for argv in generations}
+    assert shifts == {"round-000": "0.25", "val": None, "round-001": "1.0", "round-002": "1.0"}
+    assert "layout_shifts" not in TrainRoundsConfig().plan()
+    assert TrainRoundsConfig(layout_shifts=[0.5]).plan()["layout_shifts"] == [0.5]
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--shared-layout-fractions", "0.5", "1.5"], "shared_layout_fractions must be a non-empty list of numbers in"),
+    (["--layout-shifts", "-0.1"], "layout_shifts must be a non-empty list of numbers in [0, 1]"),
     (["--steps-per-round", "0"], "steps_per_round must be a positive integer"),
     (["--rounds", "-1"], "rounds must be a positive integer"),
     (["--val-demos-per-task", "2"], "val_demos_per_task must be at least 3"),
@@ -320,3 +335,5 @@ def test_the_shipped_round_configs_are_valid_and_the_continued_campaign_starts_f
         assert f"--policy.path={repo / 'checkpoints' / 'campaign_015000'}" in printed
         assert "--shared-layout-fraction 0.0" in printed
         assert "--policy.optimizer_lr=2e-4" in printed  # a continued network restarts below its own peak lr
+    if name == "cpu_campaign_shift.json":  # moves grow from a fifth of the way to the paper's independent draws
+        assert "--layout-shift 0.2" in printed and "--layout-shift 1.0" in printed

@@ -37,6 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--shared-layout-fraction", type=float, metavar="P",
                         help="the fraction of tasks whose demonstrations share one object layout (default 0: objects "
                              "move between demonstrations, the paper's setting)")
+    parser.add_argument("--layout-shift", type=float, metavar="F",
+                        help="in the other tasks, how far each later demonstration moves the objects from the first's "
+                             "poses towards a fresh layout (default 1: an independent draw, the paper's setting)")
     parser.add_argument("--object-max-yaw-deg", type=float,
                         help="objects turn about the vertical by at most this many degrees (default: 180)")
     parser.add_argument("--start-max-roll-deg", type=float,
@@ -72,6 +75,7 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
         config = dataclasses.replace(config, render=dataclasses.replace(config.render, cloud=args.cloud))
     demo_overrides = {
         "shared_layout_fraction": 1.0 if args.share_object_layout else args.shared_layout_fraction,
+        "layout_shift": args.layout_shift,
         "object_max_yaw_deg": args.object_max_yaw_deg,
         "start_max_roll_deg": args.start_max_roll_deg,
     }

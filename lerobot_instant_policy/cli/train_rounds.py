@@ -40,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--shared-layout-fractions", type=float, nargs="+", metavar="P",
                         help="fraction of one-layout tasks per round (the last repeats): e.g. 0.5 0.25 0.1 0 anneals "
                              "from the live layout to objects that move between demonstrations")
+    parser.add_argument("--layout-shifts", type=float, nargs="+", metavar="F",
+                        help="how far the moved-object tasks move their objects per round (the last repeats): e.g. "
+                             "0.25 0.5 1 grows the moves from near the live layout to independent draws")
     parser.add_argument("--launcher", help="command before lerobot-train, e.g. 'accelerate launch --multi_gpu "
                         "--num_processes=4'")
     parser.add_argument("--dry-run", action="store_true", help="print the stages and commands, run nothing")
@@ -53,7 +56,8 @@ def config_from_args(args: argparse.Namespace, policy_overrides: list[str]) -> T
         raise TrainRoundsError(str(error)) from error
     overrides = {name: getattr(args, name) for name in (
         "out", "family", "tasks_per_round", "demos_per_task", "rounds", "steps_per_round", "batch_size", "workers",
-        "num_workers", "device", "start", "seed", "val_tasks", "val_demos_per_task", "shared_layout_fractions")}
+        "num_workers", "device", "start", "seed", "val_tasks", "val_demos_per_task", "shared_layout_fractions",
+        "layout_shifts")}
     if args.launcher is not None:
         overrides["launcher"] = shlex.split(args.launcher)
     config = dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})

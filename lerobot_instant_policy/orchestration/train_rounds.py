@@ -87,7 +87,9 @@ class TrainRoundsConfig:
     cloud, …). ``shared_layout_fractions``: the fraction of one-layout pseudo-tasks (every demonstration of a task in
     one object layout) in each round, entry k for round k and the last entry for every later round, so that a
     curriculum can anneal from the live layout to objects that move between demonstrations; None leaves the
-    generation config's fraction. Validation: ``val_tasks`` × ``val_demos_per_task`` held-out pseudo-tasks from ``val_seed`` (with
+    generation config's fraction. ``layout_shifts``: likewise per round, how far the other tasks' demonstrations move
+    the objects from their first demonstration's layout (``DemoConfig.layout_shift``: 0 one layout, 1 an independent
+    draw, the paper's setting), for a curriculum that grows the moves; None leaves the generation config's. Validation: ``val_tasks`` × ``val_demos_per_task`` held-out pseudo-tasks from ``val_seed`` (with
     ``family`` reach and the defaults, the pseudo-tasks of ``configs/generate/rung1_reach_val.json``).
 
     Training: ``steps_per_round`` optimiser steps of ``batch_size`` per round, ``checkpoints_per_round`` checkpoints
@@ -111,6 +113,7 @@ class TrainRoundsConfig:
     seed: int = 31
     generation_config: str | None = None
     shared_layout_fractions: list[float] | None = None
+    layout_shifts: list[float] | None = None
     val_tasks: int = 24
     val_demos_per_task: int = 4
     val_seed: int = 121
@@ -161,11 +164,11 @@ class TrainRoundsConfig:
         bad = [arg for arg in self.policy_overrides if not arg.startswith("--policy.")]
         if bad:
             raise TrainRoundsError(f"policy_overrides must be --policy.* arguments, got {bad}")
-        fractions = self.shared_layout_fractions
-        if fractions is not None and (not fractions or not all(
-                isinstance(value, (int, float)) and 0.0 <= value <= 1.0 for value in fractions)):
-            raise TrainRoundsError(f"shared_layout_fractions must be a non-empty list of numbers in [0, 1], "
-                                   f"got {fractions!r}")
+        for name in ("shared_layout_fractions", "layout_shifts"):
+            values = getattr(self, name)
+            if values is not None and (not values or not all(
+                    isinstance(value, (int, float)) and 0.0 <= value <= 1.0 for value in values)):
+                raise TrainRoundsError(f"{name} must be a non-empty list of numbers in [0, 1], got {values!r}")
         if self.generation_config is not None and not Path(self.generation_config).is_file():
             raise TrainRoundsError(f"generation_config {self.generation_config} does not exist")
 
@@ -176,15 +179,19 @@ class TrainRoundsConfig:
         for key in ("out", "rounds", "workers", "num_workers", "device", "launcher", "eval_frames_per_task",
                     "loss_curve_samples"):
             plan.pop(key)
+        if self.layout_shifts is None:  # as before the setting existed: older runs still resume
+            plan.pop("layout_shifts")
         if self.generation_config is not None:
             plan["generation_config"] = json.loads(Path(self.generation_config).read_text())
         return plan
 
     def shared_layout_fraction(self, number: int) -> float | None:
         """The fraction of one-layout tasks in round ``number`` (None: the generation config's)."""
-        if self.shared_layout_fractions is None:
-            return None
-        return float(self.shared_layout_fractions[min(number, len(self.shared_layout_fractions) - 1)])
+        return _of_round(self.shared_layout_fractions, number)
+
+    def layout_shift(self, number: int) -> float | None:
+        """How far round ``number``'s demonstrations move the objects (None: the generation config's)."""
+        return _of_round(self.layout_shifts, number)
 
     @property
     def save_freq(self) -> int:
@@ -193,6 +200,11 @@ class TrainRoundsConfig:
     @property
     def log_freq(self) -> int:
         return max(1, min(50, self.steps_per_round // 4))
+
+
+def _of_round(values: list[float] | None, number: int) -> float | None:
+    """Entry ``number`` of a per-round schedule, the last for every later round (None: no schedule)."""
+    return None if values is None else float(values[min(number, len(values) - 1)])
 
 
 # ---------------------------------------------------------------------------------------------------- paths
@@ -243,10 +255,11 @@ def program(name: str, launcher: list[str] | None = None) -> list[str]:
 # ---------------------------------------------------------------------------------------------------- commands
 def generate_command(config: TrainRoundsConfig, out: Path, num_tasks: int, demos_per_task: int, seed: int,
                      object_split: str, resume_flag: str | None = None,
-                     shared_layout_fraction: float | None = None) -> list[str]:
+                     shared_layout_fraction: float | None = None, layout_shift: float | None = None) -> list[str]:
     """``lerobot-ip-generate`` of ``num_tasks`` × ``demos_per_task`` pseudo-tasks of the run's family into ``out``;
     ``resume_flag``: ``--resume`` or ``--overwrite`` for a directory an interrupted generation left;
-    ``shared_layout_fraction``: the fraction of one-layout tasks (None: the generation config's)."""
+    ``shared_layout_fraction``: the fraction of one-layout tasks, ``layout_shift`` how far the others move their
+    objects (None: the generation config's)."""
     command = program("lerobot-ip-generate")
     if config.generation_config is not None:
         command += ["--config", str(Path(config.generation_config).absolute())]
@@ -259,12 +272,15 @@ def generate_command(config: TrainRoundsConfig, out: Path, num_tasks: int, demos
     ]
     if shared_layout_fraction is not None:
         command += ["--shared-layout-fraction", str(shared_layout_fraction)]
+    if layout_shift is not None:
+        command += ["--layout-shift", str(layout_shift)]
     return command + ([resume_flag] if resume_flag else [])
 
 
 def round_command(config: TrainRoundsConfig, layout: Layout, number: int, resume_flag: str | None = None) -> list[str]:
     return generate_command(config, layout.round(number), config.tasks_per_round, config.demos_per_task,
-                            config.seed + number, "train", resume_flag, config.shared_layout_fraction(number))
+                            config.seed + number, "train", resume_flag, config.shared_layout_fraction(number),
+                            config.layout_shift(number))
 
 
 def val_command(config: TrainRoundsConfig, layout: Layout, resume_flag: str | None = None) -> list[str]:

@@ -68,6 +68,8 @@ class GenerationConfig:
             raise ValueError(f"family must be one of {list(FAMILIES)}, got {self.family!r}")
         if not 0.0 <= self.demo.shared_layout_fraction <= 1.0:
             raise ValueError(f"demo.shared_layout_fraction must lie in [0, 1], got {self.demo.shared_layout_fraction}")
+        if not 0.0 <= self.demo.layout_shift <= 1.0:
+            raise ValueError(f"demo.layout_shift must lie in [0, 1], got {self.demo.layout_shift}")
         for name in ("object_max_yaw_deg", "start_max_roll_deg", "start_max_tilt_deg"):
             if not 0.0 <= getattr(self.demo, name) <= 180.0:
                 raise ValueError(f"demo.{name} must lie in [0, 180] degrees, got {getattr(self.demo, name)}")
@@ -91,6 +93,8 @@ class GenerationConfig:
         plan = asdict(self)
         for key in ("out", "workers"):
             plan.pop(key)
+        if plan["demo"]["layout_shift"] == 1.0:  # the paper's draw, as before the setting existed: old plans still match
+            plan["demo"].pop("layout_shift")
         return json.loads(json.dumps(plan))
 
 
@@ -130,9 +134,10 @@ def generate_task(
         try:
             demos = [make_demo(task, objects, renderer, rng, config.demo)]
             signature = hold_signature(task, demos[0].layout, objects)
-            shared = demos[0].layout.T_world_objects if shares_object_layout(config, task_index) else None
+            shift = 0.0 if shares_object_layout(config, task_index) else config.demo.layout_shift
+            start = demos[0].layout.T_world_objects if shift < 1.0 else None
             for _ in range(config.demos_per_task - 1):
-                demos.append(make_demo(task, objects, renderer, rng, config.demo, signature, shared))
+                demos.append(make_demo(task, objects, renderer, rng, config.demo, signature, start, shift))
         except GenerationError as error:
             errors.append(str(error))
             continue

@@ -39,7 +39,11 @@ class DemoConfig:
     """How one pseudo-demonstration is laid out, moved, augmented and observed. ``shared_layout_fraction``: the
     probability that a task is one-layout, i.e. every demonstration of it places the objects where its first one
     does and only the gripper's start pose (and the augmentations) differ: the easiest context, where a demonstration
-    shows the live scene itself. Otherwise (the paper's setting) every demonstration draws its own object poses."""
+    shows the live scene itself. Otherwise (the paper's setting) every demonstration draws its own object poses;
+    ``layout_shift`` in [0, 1] says how far: each later demonstration places every object at its pose in the task's
+    first demonstration moved by this fraction of the way (position and yaw) towards a freshly drawn layout
+    (:func:`shift_layout`), so 1 (the default, the paper's) is an independent draw and values below 1 give a
+    curriculum from the live layout to the paper's setting."""
 
     num_points: int = 2048
     object_x_range: tuple[float, float] = (0.38, 0.62)
@@ -56,6 +60,7 @@ class DemoConfig:
     max_scene_attempts: int = 25
     min_height: float = -0.005
     shared_layout_fraction: float = 0.0
+    layout_shift: float = 1.0
 
 
 @dataclass
@@ -122,6 +127,27 @@ def sample_layout(objects: list[ObjectModel], rng: np.random.Generator, config: 
         look_rotation(approach, rng.uniform(-max_roll, max_roll)),
     )
     return SceneLayout(T_world_objects, start)
+
+
+def shift_layout(T_world_objects_from: np.ndarray, T_world_objects_to: np.ndarray, fraction: float) -> np.ndarray:
+    """Object poses ``(O, 4, 4)`` a ``fraction`` of the way from ``T_world_objects_from`` to ``T_world_objects_to``
+    (both yawed about the vertical only, as :func:`sample_layout` places them): positions interpolated linearly,
+    yaws along the shorter arc; ``fraction`` 0 returns ``T_world_objects_from`` unchanged."""
+    shifted = T_world_objects_from.copy()
+    if fraction == 0.0:
+        return shifted
+    for index, (T_from, T_to) in enumerate(zip(T_world_objects_from, T_world_objects_to, strict=True)):
+        yaw_from = np.arctan2(T_from[1, 0], T_from[0, 0])
+        turn = np.arctan2(T_to[1, 0], T_to[0, 0]) - yaw_from
+        turn = (turn + np.pi) % (2.0 * np.pi) - np.pi
+        position = (1.0 - fraction) * T_from[:3, 3] + fraction * T_to[:3, 3]
+        shifted[index] = make_pose(position, Rotation.from_euler("z", yaw_from + fraction * turn))
+    return shifted
+
+
+def _objects_overlap(objects: list[ObjectModel], T_world_objects: np.ndarray, clearance: float) -> bool:
+    gap = np.linalg.norm(T_world_objects[0, :2, 3] - T_world_objects[1, :2, 3])
+    return bool(gap <= objects[0].footprint_radius + objects[1].footprint_radius + clearance)
 
 
 def reference_path(task: PseudoTask, layout: SceneLayout) -> tuple[list[np.ndarray], list[bool], list[int]]:
@@ -197,20 +223,26 @@ def make_demo(
     config: DemoConfig,
     expected_signature: tuple[int, ...] | None = None,
     T_world_objects_start: np.ndarray | None = None,
+    layout_shift: float = 0.0,
 ) -> PseudoDemo:
     """Render one demonstration of ``task``; scenes are resampled until one fits.
 
     A scene fits when every frame's cloud has points, neither the gripper nor an object goes below the table
     (``min_height``) and, if ``expected_signature`` is given, the same objects get grasped at the same waypoints
     as in the task's other demonstrations. ``T_world_objects_start (2, 4, 4)`` fixes the objects' initial poses (only
-    the gripper's start pose is sampled).
+    the gripper's start pose is sampled), or with ``layout_shift`` > 0 the poses they move from by that fraction of
+    the way to each sampled layout (:func:`shift_layout`; scenes whose objects then overlap are resampled).
     """
     renderer.set_objects(objects)
     reasons = []
     for _ in range(config.max_scene_attempts):
         layout = sample_layout(objects, rng, config)
         if T_world_objects_start is not None:
-            layout = SceneLayout(T_world_objects_start.copy(), layout.T_world_ee_start)
+            T_world_objects = shift_layout(T_world_objects_start, layout.T_world_objects, layout_shift)
+            if layout_shift > 0.0 and _objects_overlap(objects, T_world_objects, config.object_clearance):
+                reasons.append("the shifted objects overlap")
+                continue
+            layout = SceneLayout(T_world_objects, layout.T_world_ee_start)
         if expected_signature is not None and hold_signature(task, layout, objects) != expected_signature:
             reasons.append("grasps differ from the task's other demonstrations")
             continue
