@@ -268,8 +268,12 @@ def test_swap_control_reads_the_next_tasks_expert_relabelled(monkeypatch, tmp_pa
     recorded, commands = [], []
     monkeypatch.setattr(recording, "record_expert_demos", lambda task, episodes, out, repo_id, seed, **kwargs:
                         recorded.append((task, out.name, repo_id, seed, kwargs["label"])))
-    monkeypatch.setattr(metaworld_suite, "run_lerobot_eval", lambda command, runs_dir, task, demo_set:
-                        commands.append(command) or runs_dir / task / f"set-{demo_set}")
+    def fake_lerobot_eval(command, runs_dir, task, demo_set):
+        commands.append(command)
+        (runs_dir / task / f"set-{demo_set}").mkdir(parents=True)
+        return runs_dir / task / f"set-{demo_set}"
+
+    monkeypatch.setattr(metaworld_suite, "run_lerobot_eval", fake_lerobot_eval)
     settings = metaworld_suite.MetaworldSuiteSettings(
         policy="instant_policy", policy_path="ckpt", tasks=("reach-v3", "push-v3"), out=tmp_path, demo_sets=2,
         swap=True)
@@ -282,6 +286,48 @@ def test_swap_control_reads_the_next_tasks_expert_relabelled(monkeypatch, tmp_pa
     assert runs[0] == tmp_path / "runs" / "instant_policy-swap" / "reach-v3" / "set-0"
     assert "--env.task=reach-v3" in commands[0] and "--policy.demo_repo_id=local/reach-v3" in commands[0]
     assert f"--policy.demo_root={tmp_path / 'demos' / 'reach-v3-n2-s0-from-push-v3'}" in commands[0]
+
+
+def test_resume_keeps_the_finished_cells_of_the_named_run_and_refuses_other_settings(monkeypatch, tmp_path, capsys):
+    """``lerobot-ip-eval-metaworld --resume`` after an interrupted run: the cells that finished under the same
+    settings are kept and only the missing one is evaluated, under ``--run-name``; a cell evaluated with another
+    episode length is refused before anything runs. ``lerobot-eval`` is replaced by a stand-in writing its
+    ``eval_info.json`` (the real call runs in the end-to-end test above)."""
+    from lerobot_instant_policy.cli.eval_metaworld import main as eval_metaworld_main
+    from lerobot_instant_policy.evaluation import metaworld_suite
+
+    evaluated = []
+
+    def fake_lerobot_eval(command, runs_dir, task, demo_set):
+        output_dir = runs_dir / task / f"set-{demo_set}"
+        output_dir.mkdir(parents=True, exist_ok=True)
+        info = {"per_task": [{"task_group": task, "task_id": 0, "metrics": {"successes": [True, False]}}],
+                "overall": {"pc_success": 50.0, "n_episodes": 2}}
+        (output_dir / "eval_info.json").write_text(json.dumps(info))
+        evaluated.append((task, demo_set))
+        return output_dir
+
+    monkeypatch.setattr(metaworld_suite, "run_lerobot_eval", fake_lerobot_eval)
+    common = ["--policy", "do_nothing", "--tasks", "reach-v3,push-v3", "--episodes", "2", "--demo-sets", "2",
+              "--out", str(tmp_path), "--run-name", "still"]
+    assert eval_metaworld_main(common) == 0
+    assert evaluated == [("reach-v3", 0), ("reach-v3", 1), ("push-v3", 0), ("push-v3", 1)]
+    runs = tmp_path / "runs" / "still"
+    assert json.loads((runs / "push-v3" / "set-1" / "suite_cell.json").read_text())["episode_length"] == 200
+    (runs / "push-v3" / "set-1" / "eval_info.json").unlink()  # interrupted in the last cell
+
+    evaluated.clear()
+    capsys.readouterr()
+    assert eval_metaworld_main([*common, "--resume"]) == 0
+    assert evaluated == [("push-v3", 1)]
+    assert capsys.readouterr().out.count("kept from the earlier run") == 3
+    assert eval_metaworld_main([*common, "--resume", "--episode-length", "100"]) == 2
+    assert "episode_length" in capsys.readouterr().err and evaluated == [("push-v3", 1)]
+    results = json.loads((tmp_path / "success_table_still.json").read_text())["rows"]
+    assert {(row["task"], row["episodes"], row["successes"]) for row in results} == {("reach-v3", 4, 2),
+                                                                                     ("push-v3", 4, 2)}
+    with pytest.raises(SystemExit):
+        eval_metaworld_main([*common, "--run-name", "../elsewhere"])
 
 
 @pytest.mark.parametrize("policy, tasks, message", [

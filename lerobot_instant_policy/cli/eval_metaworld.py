@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -48,25 +49,32 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the context-swap control: each task reads the next task's demonstrations, relabelled")
     parser.add_argument("--policy-arg", dest="policy_args", type=policy_arg, action="append", default=[],
                         metavar="KEY=VALUE", help="override a policy config field (repeatable; --policy.KEY=VALUE)")
+    parser.add_argument("--run-name", help="name of this run's folder under OUT/runs and of its table (default: the "
+                                           "policy, with -swap for --swap)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the cells of OUT/runs/<name> already evaluated with the same settings and evaluate "
+                             "the rest (refused if a finished cell's settings differ)")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.run_name is not None and not re.fullmatch(r"[\w.-]+", args.run_name):
+        parser.error(f"--run-name must be a plain folder name (letters, digits, '_', '-', '.'), got {args.run_name!r}")
     try:
         settings = MetaworldSuiteSettings(
             policy=args.policy, policy_path=args.policy_path, tasks=tuple(resolve_tasks(args.tasks)), out=args.out,
             episodes=args.episodes, demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos,
             demo_seed=args.demo_seed, eval_seed=args.eval_seed, episode_length=args.episode_length,
             pointcloud_every=args.pointcloud_every, policy_args=tuple(args.policy_args),
-            swap=args.swap,
+            swap=args.swap, run_name=args.run_name, resume=args.resume,
         )
         runs = run_suite(settings, report=lambda line: print(line, flush=True))
     except (SuiteError, MetaworldSetupError, ValueError, RuntimeError, FileExistsError) as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2
-    name = settings.runs_dir.name
+    name = settings.name
     results = collect_results([f"{name}={run}" for run in runs], None, ENV_TYPE)
     json_path, png_path = write_table(results, args.out / f"success_table_{name}",
                                       title=f"MetaWorld: {name}, success per task")

@@ -13,12 +13,14 @@ For every task (default: MT10) and every demonstration set ``s = 0 … demo_sets
 
 Clouds are rendered every ``pointcloud_every`` steps and after gripper changes (8: the steps ``instant_policy`` reads;
 ``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]``,
-``runs/<policy>[-swap]/<task>/set-<s>`` (each ``lerobot-eval`` output directory, with its videos);
-``evaluation.success_table`` pools the sets per task.
+``runs/<run name>/<task>/set-<s>`` (each ``lerobot-eval`` output directory, with its videos and the settings that
+decided it, ``suite_cell.json``, which ``resume`` checks as ``evaluation.suite`` does); ``evaluation.success_table``
+pools the sets per task.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Callable
@@ -26,7 +28,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..sim.metaworld.configuration_metaworld import MT10_TASKS
-from .suite import DEMO_SET_STRIDE, SuiteError, cell_dir, check_seeds, demo_root, run_lerobot_eval, swap_source
+from .suite import (
+    CELL_FILE,
+    DEMO_SET_STRIDE,
+    SuiteError,
+    cell_dir,
+    cell_record,
+    cells_to_keep,
+    check_seeds,
+    demo_root,
+    run_lerobot_eval,
+    swap_source,
+)
 
 POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
 DEMONSTRATION_POLICIES = ("instant_policy", "demo_replay")
@@ -36,7 +49,9 @@ ENV_TYPE = "metaworld_pointcloud"
 @dataclass(frozen=True)
 class MetaworldSuiteSettings:
     """What one evaluation of a policy on MetaWorld tasks records, runs and where it writes (module docstring).
-    ``policy_args``: ``--policy.KEY=VALUE`` added to every ``lerobot-eval`` call; ``swap``: the context-swap control."""
+    ``policy_args``: ``--policy.KEY=VALUE`` added to every ``lerobot-eval`` call; ``swap``: the context-swap control;
+    ``run_name``: the folder under ``out/runs`` (default: the policy, with ``-swap``); ``resume``: keep the cells
+    that finished under the same settings instead of evaluating them again."""
 
     policy: str = "demo_replay"
     policy_path: str | None = None
@@ -52,6 +67,8 @@ class MetaworldSuiteSettings:
     pointcloud_every: int = 8
     policy_args: tuple[str, ...] = ()
     swap: bool = False
+    run_name: str | None = None
+    resume: bool = False
 
     def validate(self) -> None:
         if self.policy not in POLICIES:
@@ -67,8 +84,13 @@ class MetaworldSuiteSettings:
         check_seeds(self.num_demos, self.demo_seed, self.eval_seed, self.episodes, self.demo_sets)
 
     @property
+    def name(self) -> str:
+        """The run's name: ``run_name``, else the policy, with ``-swap`` for the context-swap control."""
+        return (self.run_name or self.policy) + ("-swap" if self.swap and not self.run_name else "")
+
+    @property
     def runs_dir(self) -> Path:
-        return self.out / "runs" / (self.policy + ("-swap" if self.swap else ""))
+        return self.out / "runs" / self.name
 
     def demo_seed_of(self, demo_set: int) -> int:
         return self.demo_seed + DEMO_SET_STRIDE * demo_set
@@ -106,18 +128,27 @@ def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0, sou
                             label=task, episode_length=settings.episode_length)
     output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
-    return run_lerobot_eval(command, settings.runs_dir, task, demo_set)
+    run_lerobot_eval(command, settings.runs_dir, task, demo_set)
+    (output_dir / CELL_FILE).write_text(json.dumps(cell_record(settings, source), indent=2) + "\n")
+    return output_dir
 
 
 def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = print) -> list[Path]:
-    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories."""
+    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories. With
+    ``settings.resume`` the finished cells are kept (``evaluation.suite.cells_to_keep`` checks them all before
+    anything runs)."""
     settings.validate()
+    sources = {task: swap_source(task, list(settings.tasks)) if settings.swap else None for task in settings.tasks}
+    kept = cells_to_keep(settings, sources) if settings.resume else set()
     runs = []
-    for task in settings.tasks:
-        source = swap_source(task, list(settings.tasks)) if settings.swap else None
+    for task, source in sources.items():
+        with_demos = f" with {source}'s demonstrations" if source else ""
         for demo_set in range(settings.demo_sets):
+            if (task, demo_set) in kept:
+                runs.append(cell_dir(settings.runs_dir, task, demo_set))
+                report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
+                continue
             started = time.perf_counter()
             runs.append(run_task(settings, task, demo_set, source))
-            with_demos = f" with {source}'s demonstrations" if source else ""
             report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> {runs[-1]}")
     return runs

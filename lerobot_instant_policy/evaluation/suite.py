@@ -35,8 +35,9 @@ POLICIES = ("demo_replay", "instant_policy", "do_nothing")
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
 CELL_FILE = "suite_cell.json"  # in each runs/<run name>/<task>/set-<s>: the settings that decided its result
-# settings that decide no cell's result: where and how many, and the videos' size (rendering changes no observation)
-NOT_RESULT_SETTINGS = ("out", "demo_sets", "run_name", "resume")
+# settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
+# size (rendering changes no observation)
+NOT_RESULT_SETTINGS = ("out", "demo_sets", "tasks", "run_name", "resume")
 VIDEO_ENV_ARGS = ("--env.render_size=",)
 
 
@@ -226,17 +227,18 @@ def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str],
     return runs
 
 
-def cell_record(settings: SuiteSettings, source: str | None) -> dict:
-    """What decides a cell's result (JSON-ready): the settings but ``NOT_RESULT_SETTINGS`` and the video size, and
-    the swap's source task."""
+def cell_record(settings, source: str | None) -> dict:
+    """What decides a cell's result (JSON-ready): the settings (a :class:`SuiteSettings` or the MetaWorld suite's)
+    but ``NOT_RESULT_SETTINGS`` and the video size, and the swap's source task."""
     record = {key: value for key, value in asdict(settings).items() if key not in NOT_RESULT_SETTINGS}
-    record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
+    if "env_args" in record:
+        record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
     record["policy_args"] = list(settings.policy_args)
     record["swap_source"] = source
     return record
 
 
-def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> set[tuple[str, int]]:
+def cells_to_keep(settings, sources: dict[str, str | None]) -> set[tuple[str, int]]:
     """``(task, set)`` of the finished cells (``eval_info.json`` written) of ``settings.runs_dir``; a ``SuiteError``
     naming what differs when one was evaluated with other settings or has no ``CELL_FILE`` (nothing is deleted)."""
     kept = set()
