@@ -339,7 +339,7 @@ def test_layout_shift_moves_the_objects_that_fraction_of_the_way_to_the_independ
     runs = {}
     for name, extra in (("shifted", ["--layout-shift", "0.25"]), ("moved", [])):
         out = tmp_path / name
-        assert _generate(out, "--family", "reach", "--num-tasks", "4", "--demos-per-task", "3", "--seed", "9",
+        assert _generate(out, "--family", "reach", "--num-tasks", "4", "--demos-per-task", "2", "--seed", "9",
                          *extra) == 0
         runs[name] = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
 
@@ -350,8 +350,8 @@ def test_layout_shift_moves_the_objects_that_fraction_of_the_way_to_the_independ
     ranges = DemoConfig()
     reach = np.hypot(np.ptp(ranges.object_x_range), np.ptp(ranges.object_y_range)) * 0.25
     matches = checked = 0
-    for index in range(0, len(runs["moved"]), 3):
-        first, moved, shifted = runs["moved"][index], runs["moved"][index: index + 3], runs["shifted"][index: index + 3]
+    for index in range(0, len(runs["moved"]), 2):
+        first, moved, shifted = runs["moved"][index], runs["moved"][index: index + 2], runs["shifted"][index: index + 2]
         assert shifted[0]["T_world_objects"] == first["T_world_objects"]
         for number, (drawn, demo) in enumerate(zip(moved[1:], shifted[1:])):
             checked += number == 0
