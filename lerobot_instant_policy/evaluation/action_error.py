@@ -128,12 +128,14 @@ def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = No
         "steps": int(translation.size),
     }
     if phases is not None:
-        summary["by_phase"] = {
-            name: {"translation_mm": round(float(np.mean([e["translation_mm"].mean() for e in chosen])), 3)
-                   if chosen else None, "frames": len(chosen)}
-            for index, name in enumerate(PHASES)
-            for chosen in [[e for e, phase in zip(errors, phases, strict=True) if phase == index]]
-        }
+        if len(phases) != len(errors):
+            raise ValueError(f"one phase per frame: {len(phases)} phases for {len(errors)} frames")
+        per_frame = np.array([e["translation_mm"].mean() for e in errors])
+        summary["by_phase"] = {}
+        for index, name in enumerate(PHASES):
+            chosen = per_frame[np.asarray(phases) == index]
+            summary["by_phase"][name] = {"translation_mm": round(float(chosen.mean()), 3) if chosen.size else None,
+                                         "frames": int(chosen.size)}
     return summary
 
 
