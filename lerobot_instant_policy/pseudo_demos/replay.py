@@ -107,8 +107,7 @@ def sample_layout(objects: list[ObjectModel], rng: np.random.Generator, config: 
                 for _ in objects
             ]
         )
-        gap = np.linalg.norm(positions[0, :2] - positions[1, :2])
-        if gap > objects[0].footprint_radius + objects[1].footprint_radius + config.object_clearance:
+        if not _too_close(objects, positions, config.object_clearance):
             break
     else:
         positions[1, 1] = positions[0, 1] + np.sign(rng.normal()) * (
@@ -145,8 +144,10 @@ def shift_layout(T_world_objects_from: np.ndarray, T_world_objects_to: np.ndarra
     return shifted
 
 
-def _objects_overlap(objects: list[ObjectModel], T_world_objects: np.ndarray, clearance: float) -> bool:
-    gap = np.linalg.norm(T_world_objects[0, :2, 3] - T_world_objects[1, :2, 3])
+def _too_close(objects: list[ObjectModel], positions: np.ndarray, clearance: float) -> bool:
+    """Whether the two objects at ``positions (2, 3)`` (world frame) are closer on the table than their footprints
+    and ``clearance`` allow."""
+    gap = np.linalg.norm(positions[0, :2] - positions[1, :2])
     return bool(gap <= objects[0].footprint_radius + objects[1].footprint_radius + clearance)
 
 
@@ -238,11 +239,11 @@ def make_demo(
     for _ in range(config.max_scene_attempts):
         layout = sample_layout(objects, rng, config)
         if T_world_objects_start is not None:
-            T_world_objects = shift_layout(T_world_objects_start, layout.T_world_objects, layout_shift)
-            if layout_shift > 0.0 and _objects_overlap(objects, T_world_objects, config.object_clearance):
+            T_world_objects_shifted = shift_layout(T_world_objects_start, layout.T_world_objects, layout_shift)
+            if layout_shift > 0.0 and _too_close(objects, T_world_objects_shifted[:, :3, 3], config.object_clearance):
                 reasons.append("the shifted objects overlap")
                 continue
-            layout = SceneLayout(T_world_objects, layout.T_world_ee_start)
+            layout = SceneLayout(T_world_objects_shifted, layout.T_world_ee_start)
         if expected_signature is not None and hold_signature(task, layout, objects) != expected_signature:
             reasons.append("grasps differ from the task's other demonstrations")
             continue
