@@ -149,11 +149,13 @@ results-suite: $(INSTALLED)
 	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg samples_per_prediction=8 --run-name instant_policy_S8
 	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg replay_init_strength=0.25 \
 		--policy-arg replay_per_object=true --run-name ip_per_object_s025
+	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg replay_init_strength=0.125 \
+		--policy-arg inference_steps=8 --policy-arg replay_per_object=true --run-name ip_per_object_s0125_K8
 	$(SUITE) --policy demo_replay
 	$(SUITE) --policy demo_replay --policy-arg registration_per_object=true --run-name demo_replay_per_object
 	$(SUITE) --policy do_nothing
 	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,instant_policy instant_policy-swap instant_policy_S8 \
-		ip_per_object_s025 demo_replay demo_replay_per_object do_nothing,$(run)=outputs/results/suite/runs/$(run)) \
+		ip_per_object_s025 ip_per_object_s0125_K8 demo_replay demo_replay_per_object do_nothing,$(run)=outputs/results/suite/runs/$(run)) \
 		--out docs/results_suite
 
 results-study: $(INSTALLED)
