@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,11 +33,10 @@ from .suite import (
     SuiteError,
     cell_dir,
     cell_record,
-    cells_to_keep,
     check_seeds,
     demo_root,
+    run_cells,
     run_lerobot_eval,
-    swap_source,
 )
 
 POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
@@ -138,17 +136,4 @@ def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = 
     ``settings.resume`` the finished cells are kept (``evaluation.suite.cells_to_keep`` checks them all before
     anything runs)."""
     settings.validate()
-    sources = {task: swap_source(task, list(settings.tasks)) if settings.swap else None for task in settings.tasks}
-    kept = cells_to_keep(settings, sources) if settings.resume else set()
-    runs = []
-    for task, source in sources.items():
-        with_demos = f" with {source}'s demonstrations" if source else ""
-        for demo_set in range(settings.demo_sets):
-            if (task, demo_set) in kept:
-                runs.append(cell_dir(settings.runs_dir, task, demo_set))
-                report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
-                continue
-            started = time.perf_counter()
-            runs.append(run_task(settings, task, demo_set, source))
-            report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> {runs[-1]}")
-    return runs
+    return run_cells(settings, list(settings.tasks), run_task, report)

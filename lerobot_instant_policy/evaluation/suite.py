@@ -209,11 +209,17 @@ def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str],
     """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories. With
     ``settings.resume`` the finished cells are kept (``cells_to_keep`` checks them all before anything runs)."""
     settings.validate()
+    return run_cells(settings, tasks, run_task, report)
+
+
+def run_cells(settings, tasks: list[str], run_cell: Callable[..., Path], report: Callable[[str], None]) -> list[Path]:
+    """``run_cell(settings, task, demo_set, source)`` for every task × demonstration set of ``settings`` (this
+    suite's or the MetaWorld suite's), ``source`` the swap control's other task; with ``settings.resume`` the cells
+    that :func:`cells_to_keep` keeps are not run again. Reports each cell; returns their directories in order."""
     sources = {task: swap_source(task, tasks) if settings.swap else None for task in tasks}
     kept = cells_to_keep(settings, sources) if settings.resume else set()
     runs = []
-    for task in tasks:
-        source = sources[task]
+    for task, source in sources.items():
         with_demos = f" with {source}'s demonstrations" if source else ""
         for demo_set in range(settings.demo_sets):
             if (task, demo_set) in kept:
@@ -221,7 +227,7 @@ def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str],
                 report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
                 continue
             started = time.perf_counter()
-            runs.append(run_task(settings, task, demo_set, source))
+            runs.append(run_cell(settings, task, demo_set, source))
             report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> "
                    f"{runs[-1]}")
     return runs
