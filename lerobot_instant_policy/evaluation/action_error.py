@@ -131,9 +131,10 @@ def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = No
         if len(phases) != len(errors):
             raise ValueError(f"one phase per frame: {len(phases)} phases for {len(errors)} frames")
         per_frame = np.array([e["translation_mm"].mean() for e in errors])
+        phase_of_frame = np.asarray(phases)
         summary["by_phase"] = {}
         for index, name in enumerate(PHASES):
-            chosen = per_frame[np.asarray(phases) == index]
+            chosen = per_frame[phase_of_frame == index]
             summary["by_phase"][name] = {"translation_mm": round(float(chosen.mean()), 3) if chosen.size else None,
                                          "frames": int(chosen.size)}
     return summary
@@ -234,15 +235,19 @@ def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
     ]
 
 
+def _ratio(numerator: float | None, denominator: float | None) -> float | None:
+    """``numerator / denominator`` to 3 decimals; None when either is missing or the denominator is not positive."""
+    if numerator is None or denominator is None or denominator <= 0:
+        return None
+    return round(numerator / denominator, 3)
+
+
 def context_gain(own: dict, swap: dict) -> dict:
     """``swap / own`` of the translation and rotation errors and of the gripper error (1 − accuracy)."""
-    def ratio(swap_error: float, own_error: float) -> float | None:
-        return round(swap_error / own_error, 3) if own_error > 0 else None
-
     return {
-        "translation": ratio(swap["translation_mm"], own["translation_mm"]),
-        "rotation": ratio(swap["rotation_deg"], own["rotation_deg"]),
-        "gripper": ratio(1.0 - swap["gripper_accuracy"], 1.0 - own["gripper_accuracy"]),
+        "translation": _ratio(swap["translation_mm"], own["translation_mm"]),
+        "rotation": _ratio(swap["rotation_deg"], own["rotation_deg"]),
+        "gripper": _ratio(1.0 - swap["gripper_accuracy"], 1.0 - own["gripper_accuracy"]),
     }
 
 
@@ -250,14 +255,12 @@ def phase_table(own: dict, hold: dict, swap: dict) -> dict:
     """Per third of the live episodes (``by_phase`` of three :func:`summarise` results at one setting): frames, the
     translation error (mm) with the checkpoint's own demonstrations, holding still and the context swap, own / hold
     and the context gain (swap / own)."""
-    def ratio(numerator: float | None, denominator: float | None) -> float | None:
-        return round(numerator / denominator, 3) if numerator is not None and denominator else None
-
     table = {}
     for name in PHASES:
         own_mm, hold_mm, swap_mm = (row["by_phase"][name]["translation_mm"] for row in (own, hold, swap))
         table[name] = {"frames": own["by_phase"][name]["frames"], "own_mm": own_mm, "hold_mm": hold_mm,
-                       "swap_mm": swap_mm, "over_hold": ratio(own_mm, hold_mm), "context_gain": ratio(swap_mm, own_mm)}
+                       "swap_mm": swap_mm, "over_hold": _ratio(own_mm, hold_mm),
+                       "context_gain": _ratio(swap_mm, own_mm)}
     return table
 
 
