@@ -188,3 +188,16 @@ def test_training_steps_lower_the_evaluated_loss(run):
     after = evaluate_loss(policy, preprocessor, evaluation, batch_size=6)
     assert policy.training, "evaluate_loss leaves the policy in the mode it found it in"
     assert after.loss < 0.75 * before.loss, (before, after)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cli_runs_on_cuda_and_its_prior_level_is_the_cpu_figure(run, capsys):
+    """The prior-only level draws its timesteps and noise on the CPU from the same frames, so a run on the GPU reports
+    the CPU's figure (up to float32 kernels); the network's losses draw on the GPU's RNG and only need to be finite."""
+    base, run_dir = run
+    code, on_cpu, err = curve_cli(base, run_dir, capsys, "--out", str(base / "curve_cpu.png"), "--device", "cpu")
+    assert code == 0, err
+    code, on_cuda, err = curve_cli(base, run_dir, capsys, "--out", str(base / "curve_cuda.png"), "--device", "cuda")
+    assert code == 0, err
+    assert on_cuda["prior_only_val"]["translation"] == pytest.approx(on_cpu["prior_only_val"]["translation"], rel=1e-5)
+    assert all(point["context_gain_translation"] > 0 for point in on_cuda["curve"])

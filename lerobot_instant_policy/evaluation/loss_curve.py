@@ -207,12 +207,13 @@ def prior_only_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evalu
         clean.append(diffusion.normalize(T_ee_actions.double(), action_gripper.double()))
     x0 = torch.cat(clean)
     mean, variance = x0.mean(dim=0), x0.var(dim=0, unbiased=False)
-    with torch.random.fork_rng(devices=[]):
+    with torch.random.fork_rng(devices=[]):  # drawn on the CPU: the same figure on every device
         torch.manual_seed(seed)
         timesteps = torch.randint(0, diffusion.num_train_timesteps, (len(x0),))
         noise = torch.randn(x0.shape, dtype=x0.dtype)
+    timesteps, noise = timesteps.to(x0.device), noise.to(x0.device)
     x_t = diffusion.add_noise(x0, noise, timesteps)
-    alpha_bar = diffusion.train_scheduler.alphas_cumprod.to(x0.dtype)[timesteps][:, None, None]
+    alpha_bar = diffusion.train_scheduler.alphas_cumprod.to(x0.device, x0.dtype)[timesteps][:, None, None]
     gain = alpha_bar.sqrt() * variance / (alpha_bar * variance + 1.0 - alpha_bar)
     x0_prior = mean + gain * (x_t - alpha_bar.sqrt() * mean)
     T_noisy, _ = diffusion.unnormalize(x_t)
