@@ -16,6 +16,7 @@ os.environ.setdefault("MUJOCO_GL", "osmesa")  # as make eval-metaworld sets it, 
 
 from lerobot_instant_policy.sim.metaworld import dependencies  # noqa: E402
 from lerobot_instant_policy.sim.metaworld.actions import ee_target, metaworld_action  # noqa: E402
+from lerobot_instant_policy.sim.metaworld.configuration_metaworld import resolve_tasks  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CHECKPOINT = REPO / "lerobot_instant_policy" / "assets" / "checkpoints" / "instant_policy"
@@ -123,14 +124,45 @@ def test_base_install_registers_the_env_without_metaworld():
     assert completed.stdout.strip().splitlines()[-1] == "[]"
 
 
-def test_unknown_task_is_refused_with_the_groups():
-    _metaworld_or_skip()
-    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import MT10_TASKS, resolve_tasks
+def test_task_groups_resolve_without_metaworld_or_gl():
+    """Naming tasks imports neither MetaWorld nor MuJoCo (so no GL library is needed to plan an evaluation): MT10,
+    MT50, ML45's split and LeRobot's difficulty groups by name, names with LeRobot's prefix, unknown names refused."""
+    code = (
+        "import sys; from lerobot_instant_policy.sim.metaworld.configuration_metaworld import resolve_tasks; "
+        "groups = {g: resolve_tasks(g) for g in ('mt10', 'mt50', 'ml45_train', 'ml45_test', 'easy', 'very_hard')}; "
+        "assert 'mujoco' not in sys.modules and 'metaworld' not in sys.modules, sorted(sys.modules); "
+        "print(repr(groups))"
+    )
+    completed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                               env={**os.environ, "MUJOCO_GL": "osmesa"})
+    groups = eval(completed.stdout)  # noqa: S307 - our own repr of lists of strings
+    assert len(groups["mt50"]) == 50 and len(set(groups["mt50"])) == 50
+    assert groups["ml45_test"] == ["bin-picking-v3", "box-close-v3", "hand-insert-v3", "door-lock-v3", "door-unlock-v3"]
+    assert len(groups["ml45_train"]) == 45 and not set(groups["ml45_train"]) & set(groups["ml45_test"])
+    assert set(groups["mt10"]) < set(groups["mt50"]) and "stick-pull-v3" in groups["very_hard"]
 
-    assert resolve_tasks("mt10") == list(MT10_TASKS)
-    assert resolve_tasks("metaworld-reach-v3,push-v3") == ["reach-v3", "push-v3"]
-    with pytest.raises(ValueError, match="unknown MetaWorld task 'pick-v9'.*mt10"):
+    assert resolve_tasks("metaworld-reach-v3,push-v3,reach-v3") == ["reach-v3", "push-v3"]
+    with pytest.raises(ValueError, match="unknown MetaWorld task 'pick-v9'.*ml45_test"):
         resolve_tasks("pick-v9")
+
+
+def test_written_out_groups_are_metaworlds_own():
+    """MT10 and ML45's held-out tasks, written out so that naming them needs no MetaWorld import, are MetaWorld's own
+    (read here in a process that imports MetaWorld with rendering disabled: no GL library needed)."""
+    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import ML45_TEST_TASKS, MT10_TASKS
+
+    code = ("import metaworld.env_dict as d; print(repr((list(d.MT10_V3), list(d.ML45_V3['test']), "
+            "list(d.ML45_V3['train']), list(d.ALL_V3_ENVIRONMENTS))))")
+    completed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                               env={**os.environ, "MUJOCO_GL": "disable"})
+    if completed.returncode != 0 and "No module named 'metaworld'" in completed.stderr:
+        pytest.skip("the metaworld extra is not installed")
+    assert completed.returncode == 0, completed.stderr[-2000:]
+    mt10, ml45_test, ml45_train, all_tasks = eval(completed.stdout)  # noqa: S307
+    assert (list(MT10_TASKS), list(ML45_TEST_TASKS)) == (mt10, ml45_test)
+    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import task_groups
+
+    assert sorted(task_groups()["mt50"]) == sorted(all_tasks) and sorted(task_groups()["ml45_train"]) == sorted(ml45_train)
 
 
 # ------------------------------------------------------------------------------------------------ observations
@@ -152,6 +184,61 @@ def test_cloud_holds_the_task_objects_and_goal_marker_only(pick_place_env):
     assert np.all(on_puck | on_goal), points[~(on_puck | on_goal)][:5]
     cloud = observation["pointcloud"]
     assert cloud.shape == (2048, 3) and cloud.dtype == np.float32
+
+
+EVERY_TASK = resolve_tasks("mt50")
+
+
+@pytest.mark.parametrize("task", EVERY_TASK)
+def test_every_task_resets_renders_its_objects_and_not_the_robot_or_table_and_steps(task):
+    """Each of MetaWorld's 50 v3 tasks through the env: the scenery found from the model (not a list of names)
+    matches MetaWorld's own names for the robot, table, retaining wall and floor (the oracle here); the cloud holds
+    points at every object MetaWorld reports and none below the table top; a step moves the EE."""
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.env import CameraSettings, MetaworldPointCloudEnv
+
+    env = MetaworldPointCloudEnv(task, cameras=CameraSettings(resolution=160))
+    try:
+        observation, _ = env.reset(seed=3)
+        world = env.metaworld_env
+        model = world.model
+        names = [name for name in ("base", "mocap", "tablelink", "RetainingWall") if _has_body(model, name)]
+        not_task = {model.body(name).id for name in names} | {0}
+        scenery_or_robot = np.isin(model.body_rootid[model.geom_bodyid], list(not_task))
+        assert not env.cameras.keep_geoms[scenery_or_robot].any() and env.cameras.keep_geoms.any()
+        cloud = observation["pointcloud"]
+        assert cloud.shape == (2048, 3) and cloud.dtype == np.float32 and np.isfinite(cloud).all()
+        for position in np.asarray(world._get_pos_objects()).reshape(-1, 3):
+            assert np.linalg.norm(cloud - position, axis=1).min() < 0.07, position
+        assert cloud[:, 2].min() > -0.01  # nothing of the table's body, its legs or the floor
+        target = observation["agent_pos"].copy()
+        target[2] += 0.01
+        for _ in range(3):  # the hand follows MetaWorld's mocap target over a few steps
+            stepped, *_ = env.step(target)
+        assert stepped["agent_pos"][2] > observation["agent_pos"][2] + 0.002
+    finally:
+        env.close()
+
+
+def _has_body(model, name: str) -> bool:
+    import mujoco
+
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name) >= 0
+
+
+def test_scenery_needs_a_metaworld_model(tmp_path):
+    """A model without MetaWorld's scene file or without a robot welded to a mocap body is refused by name."""
+    _metaworld_or_skip()
+    import mujoco
+
+    from lerobot_instant_policy.sim.metaworld.scenery import robot_root_bodies, scene_body_names
+
+    xml = tmp_path / "plain.xml"
+    xml.write_text("<mujoco><worldbody><body name='box'><geom size='0.1'/></body></worldbody></mujoco>")
+    with pytest.raises(ValueError, match="no MetaWorld scene file"):
+        scene_body_names(xml)
+    with pytest.raises(ValueError, match="no weld joins a mocap body"):
+        robot_root_bodies(mujoco.MjModel.from_xml_path(str(xml)))
 
 
 def test_state_is_the_contract_ee_pose(pick_place_env):

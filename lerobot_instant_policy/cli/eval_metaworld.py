@@ -34,7 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lerobot-ip-eval-metaworld", description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", choices=POLICIES, default="demo_replay")
     parser.add_argument("--policy-path", help="a pretrained_model directory (instant_policy checkpoints)")
-    parser.add_argument("--tasks", default="mt10", help="mt10, a LeRobot difficulty group, or comma-separated names")
+    parser.add_argument("--tasks", default="mt10",
+                        help="comma-separated task names or groups: mt10, mt50, ml45_train, ml45_test, easy … very_hard")
     parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes per task and demonstration set")
     parser.add_argument("--demo-sets", type=int, default=1, help="disjoint demonstration sets per task")
     parser.add_argument("--batch-size", type=int, default=2)

@@ -4,8 +4,8 @@ Each camera renders two passes with ``mujoco.Renderer``: metric depth (MuJoCo tu
 along the optical axis with the model's ``vis.map.znear`` / ``zfar`` scaled by ``stat.extent``) and segmentation
 (every pixel's object id and type). A pixel is kept when it shows a geom of a task object, or one of the task's
 target sites (MetaWorld's goal markers, drawn as spheres in its own renders); it is dropped when it shows the
-robot (every body under the Sawyer's root body, and the mocap body), the table, the retaining wall, the floor
-(bodies ``SCENERY_BODIES`` and the world body's geoms), another site, or nothing. Kept pixels are back-projected
+robot, MetaWorld's scenery (the table, the retaining wall, the floor: :mod:`.scenery` finds them in the model),
+another site, or nothing. Kept pixels are back-projected
 with the pinhole model of the camera's ``fovy`` (:mod:`...perception.depth`), fused over the cameras and resampled
 to a fixed size (:mod:`...geometry.sampling`).
 
@@ -24,8 +24,6 @@ import numpy as np
 from ...geometry.sampling import resample_points
 from ...perception.depth import DepthRange, backproject
 
-ROBOT_ROOT_BODY = "base"  # the Sawyer's root body in every MetaWorld v3 model
-SCENERY_BODIES = ("tablelink", "RetainingWall", "mocap")  # with the world body (the floor): never task objects
 _GL_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 _DEPTH_RANGE = DepthRange(near=0.01, far=5.0)
 _GEOM = int(mujoco.mjtObj.mjOBJ_GEOM)  # plain ints: comparing arrays with the enum goes element by element
@@ -64,32 +62,27 @@ def camera_pose(data: mujoco.MjData, camera: str) -> np.ndarray:
     return T_world_camera
 
 
-def task_object_geoms(model: mujoco.MjModel) -> np.ndarray:
-    """``(ngeom,)`` bool: the geoms of task objects (not the robot, not the scenery, not the world body)."""
-    robot_root = model.body(ROBOT_ROOT_BODY).id
-    scenery = {model.body(name).id for name in SCENERY_BODIES} | {0}
-    roots = model.body_rootid[model.geom_bodyid]
-    bodies = model.geom_bodyid
-    return (roots != robot_root) & ~np.isin(roots, list(scenery)) & ~np.isin(bodies, list(scenery))
-
-
 class SegmentedDepthCameras:
     """Renders the segmented cloud of one MetaWorld model (module docstring).
 
     Args:
         model: the env's ``MjModel``.
         settings: cameras and resolution.
+        task_geoms: ``(ngeom,)`` bool, the geoms kept (:func:`.scenery.task_object_geoms`).
         target_sites: names of the sites kept as goal markers (MetaWorld's ``_target_site_config``).
     """
 
-    def __init__(self, model: mujoco.MjModel, settings: CameraSettings, target_sites: tuple[str, ...] = ()):
+    def __init__(self, model: mujoco.MjModel, settings: CameraSettings, task_geoms: np.ndarray,
+                 target_sites: tuple[str, ...] = ()):
         for name in settings.cameras:
             if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name) < 0:
                 known = [model.cam(index).name for index in range(model.ncam)]
                 raise ValueError(f"MetaWorld has no camera {name!r}; its cameras are {known}")
         self.model = model
         self.settings = settings
-        self.keep_geoms = task_object_geoms(model)
+        if task_geoms.shape != (model.ngeom,):
+            raise ValueError(f"task_geoms must be ({model.ngeom},) bool, got {task_geoms.shape}")
+        self.keep_geoms = task_geoms
         self.keep_sites = np.zeros(model.nsite, dtype=bool)
         for name in target_sites:
             self.keep_sites[model.site(name).id] = True

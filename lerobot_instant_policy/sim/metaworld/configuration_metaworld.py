@@ -5,9 +5,9 @@
 task (``env.MetaworldPointCloudEnv``, a subclass of LeRobot's ``MetaworldEnv``). LeRobot turns the env observations
 ``pointcloud``, ``agent_pos`` and ``environment_state`` into ``observation.pointcloud (B, P, 3)``,
 ``observation.state (B, 8)`` and ``observation.environment_state (B, 39)``; the action is ``(8,)``, an absolute EE
-target. ``--env.task`` takes a task, a comma-separated list, ``mt10`` (MetaWorld's MT10 tasks) or one of LeRobot's
-difficulty groups (``easy``, ``medium``, ``hard``, ``very_hard``); each task is a task group of its own in
-``eval_info.json``.
+target. ``--env.task`` takes a task, a comma-separated list, or a group: ``mt10``, ``mt50`` (every v3 task),
+``ml45_train`` / ``ml45_test`` (ML45's split: 45 training tasks, 5 held out) or one of LeRobot's difficulty groups
+(``easy``, ``medium``, ``hard``, ``very_hard``); each task is a task group of its own in ``eval_info.json``.
 
 Why a config subclass registered under a new type and not the ``metaworld`` type itself: the subclass keeps
 LeRobot's fields and their meaning (``task``, ``fps``, ``episode_length``, the difficulty groups) and builds
@@ -33,7 +33,11 @@ ENVIRONMENT_STATE_KEY = "observation.environment_state"
 MT10_TASKS = (
     "reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
     "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3",
-)  # metaworld.env_dict.MT10_V3, written out so that the config does not import MetaWorld
+)  # metaworld.env_dict.MT10_V3, written out so that naming tasks needs neither MetaWorld nor an OpenGL library
+ML45_TEST_TASKS = ("bin-picking-v3", "box-close-v3", "hand-insert-v3", "door-lock-v3", "door-unlock-v3")
+# metaworld.env_dict.ML45_V3["test"]: the tasks ML45 holds out from meta-training, the natural check of a policy
+# meant for new tasks; ML45's training tasks are the other 45
+LEROBOT_METAWORLD_CONFIG = "metaworld_config.json"  # beside lerobot.envs: its task names and difficulty groups
 
 
 def make_metaworld_pointcloud_env(task: str, **env_kwargs):
@@ -45,28 +49,46 @@ def make_metaworld_pointcloud_env(task: str, **env_kwargs):
     return MetaworldPointCloudEnv(task, cameras=cameras, **env_kwargs)
 
 
+def lerobot_metaworld_tasks() -> tuple[list[str], dict[str, list[str]]]:
+    """MetaWorld's 50 v3 task names and LeRobot's difficulty groups (``easy`` … ``very_hard``), read from the JSON
+    file LeRobot's own MetaWorld env loads (importing that env would import MuJoCo, which needs the GL library)."""
+    import json
+    from importlib.resources import files
+
+    data = json.loads(files("lerobot.envs").joinpath(LEROBOT_METAWORLD_CONFIG).read_text())
+    return list(data["TASK_POLICY_MAPPING"]), dict(data["DIFFICULTY_TO_TASKS"])
+
+
+def task_groups() -> dict[str, list[str]]:
+    """Every task group ``--env.task`` accepts by name: ``mt10``, ``mt50`` (all 50 tasks), ``ml45_train`` and
+    ``ml45_test`` (ML45's split) and LeRobot's difficulty groups."""
+    all_tasks, difficulty_groups = lerobot_metaworld_tasks()
+    return {
+        "mt10": list(MT10_TASKS),
+        "mt50": all_tasks,
+        "ml45_train": [task for task in all_tasks if task not in ML45_TEST_TASKS],
+        "ml45_test": list(ML45_TEST_TASKS),
+        **difficulty_groups,
+    }
+
+
 def resolve_tasks(task: str) -> list[str]:
-    """``task`` → MetaWorld task names: ``mt10``, LeRobot's difficulty groups, or comma-separated names (the
-    ``metaworld-`` prefix dropped); unknown names raise ``ValueError`` listing the groups. Needs the extra."""
-    from .dependencies import import_metaworld
-
-    import_metaworld()  # before LeRobot's metaworld module imports mujoco
-    from lerobot.envs.metaworld import DIFFICULTY_TO_TASKS, TASK_POLICY_MAPPING
-
+    """``task`` → MetaWorld task names: comma-separated task names (the ``metaworld-`` prefix dropped) or groups of
+    :func:`task_groups`; unknown names raise ``ValueError`` listing the groups. Imports neither MetaWorld nor MuJoCo."""
+    all_tasks, _ = lerobot_metaworld_tasks()
+    groups = task_groups()
     names = []
     for item in (part.strip() for part in task.split(",") if part.strip()):
-        if item == "mt10":
-            names += MT10_TASKS
-        elif item in DIFFICULTY_TO_TASKS:
-            names += DIFFICULTY_TO_TASKS[item]
-        else:
-            name = item.removeprefix("metaworld-")
-            if name not in TASK_POLICY_MAPPING:
-                raise ValueError(f"unknown MetaWorld task {item!r}: give v3 task names (e.g. pick-place-v3), mt10 or "
-                                 f"one of {sorted(DIFFICULTY_TO_TASKS)}")
-            names.append(name)
+        if item in groups:
+            names += groups[item]
+            continue
+        name = item.removeprefix("metaworld-")
+        if name not in all_tasks:
+            raise ValueError(f"unknown MetaWorld task {item!r}: give v3 task names (e.g. pick-place-v3) or one of "
+                             f"the groups {sorted(groups)}")
+        names.append(name)
     if not names:
-        raise ValueError("metaworld_pointcloud needs --env.task (a task name, mt10 or a difficulty group)")
+        raise ValueError("metaworld_pointcloud needs --env.task (a task name or a group: mt10, ml45_test …)")
     return list(dict.fromkeys(names))
 
 

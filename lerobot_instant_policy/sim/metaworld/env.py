@@ -30,6 +30,8 @@ goal is a small marker object in the cloud and moves with MetaWorld's randomisat
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from gymnasium import spaces
 
@@ -42,6 +44,7 @@ from lerobot.envs.metaworld import MetaworldEnv  # noqa: E402
 from ...contract import NUM_POINTS, POSE_GRIPPER_SHAPE  # noqa: E402
 from . import actions  # noqa: E402
 from .cameras import CameraSettings, SegmentedDepthCameras  # noqa: E402
+from .scenery import task_object_geoms  # noqa: E402
 
 ENVIRONMENT_STATE_SHAPE = (39,)
 VIDEO_CAMERA = "corner2"  # LeRobot's camera for MetaWorld, moved by LeRobot to face the table
@@ -97,7 +100,8 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         self._env.model.light_castshadow[:] = 0  # videos without shadows and multisampling (module docstring);
         self._env.model.vis.quality.offsamples = 0  # read when a renderer's context is made: before any rendering
         target_sites = tuple(name for name, _ in self._env._target_site_config)
-        self.cameras = SegmentedDepthCameras(self._env.model, self.camera_settings, target_sites)
+        task_geoms = task_object_geoms(self._env.model, Path(self._env.model_name))
+        self.cameras = SegmentedDepthCameras(self._env.model, self.camera_settings, task_geoms, target_sites)
 
     def ee_state(self) -> np.ndarray:
         """``agent_pos (8,)``: the EE pose now (``tcp_center``, hand orientation) and the gripper state."""
