@@ -40,8 +40,9 @@ from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_
 from .data.replay_plan import ReplayPlan, plan_replay
 from .geometry.registration import RegistrationConfig
 from .geometry.rigid_torch import compose, invert_rigid
+from .model.bounds import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, check_range
 from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
-from .model.occupancy import load_geometry_encoder
+from .model.occupancy import load_encoder_weights
 from .policy.context_encoder import ContextEncoder
 from .policy.frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
 
@@ -90,7 +91,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._action_chunks: ActionChunks | None = None
         self._task_contexts: dict[str, TaskContext] = {}
         if config.pretrained_encoder and load_encoder_weights:
-            self.load_encoder_weights(config.require_encoder_weights())
+            self.load_encoder_weights(config.encoder_weights_path())
         if dataset_meta is not None:
             self._training_bank = self._read_training_bank(dataset_meta)
             self._action_chunks = ActionChunks.from_dataset(dataset_meta.repo_id, dataset_meta.root)
@@ -103,10 +104,16 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         )
 
     def load_encoder_weights(self, path: str | Path) -> None:
-        """Load the frozen geometry encoder's weights from a ``lerobot-ip-pretrain-encoder`` file; a
-        ``ValueError`` when they were trained for another architecture than ``config.encoder_preset``'s."""
-        encoder = load_geometry_encoder(path, expected=self.config.encoder_config)
-        self.network.geometry_encoder.load_state_dict(encoder.state_dict())
+        """Load the frozen geometry encoder's weights from a ``lerobot-ip-pretrain-encoder`` file: a
+        ``FileNotFoundError`` that says how to get them when there is none, a ``ValueError`` when they were trained
+        for another architecture than the network's encoder."""
+        if not Path(path).is_file():
+            raise FileNotFoundError(
+                f"no geometry encoder weights at {path}: train them with `lerobot-ip-pretrain-encoder --preset "
+                f"{self.config.encoder_preset} --out FILE.safetensors` and pass --policy.encoder_weights=FILE.safetensors, "
+                "or set --policy.pretrained_encoder=false for a randomly initialised frozen encoder"
+            )
+        load_encoder_weights(self.network.geometry_encoder, path)
         self.clear_context_caches()
 
     # ------------------------------------------------------------------ LeRobot interface
@@ -332,7 +339,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         """The frozen encoder's output for every frame of the dataset ``dataset_meta`` describes (its local ``root``),
         for the current encoder weights: loaded from beside the dataset, or built there once (minutes on a CPU)."""
         root, repo_id = dataset_meta.root, dataset_meta.repo_id
-        fingerprint = encoder_fingerprint(self.network.geometry_encoder, self.config.encoder_config.to_dict())
+        encoder = self.network.geometry_encoder
+        fingerprint = encoder_fingerprint(encoder, encoder.config.to_dict())
         encodings = load_frame_encodings(root, fingerprint)
         if encodings is None:
             logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
@@ -366,8 +374,11 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------------ inference context
     def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None:
         """Use ``demonstrations`` (N of them, all of one task) as that task's context, each reduced to
-        ``num_waypoints`` (L; ``None``: the config's). Any N in 1…8 and L in 2…32 work without retraining."""
-        self._check_demonstrations(demonstrations, num_waypoints or self.config.num_waypoints)
+        ``num_waypoints`` (L; ``None``: the config's). Any N and L in the network's ranges
+        (:mod:`~.model.bounds`: 1…8, 2…32) work without retraining."""
+        check_range("the number of demonstrations N", len(demonstrations), SUPPORTED_DEMOS)
+        check_range("num_waypoints (L)", num_waypoints or self.config.num_waypoints, SUPPORTED_WAYPOINTS)
+        self._check_demonstrations(demonstrations)
         task = self._demonstrations.hand_in(demonstrations)
         self._task_contexts[task] = TaskContext(num_waypoints or self.config.num_waypoints, handed_in=True)
         self.task_context(task)
@@ -385,7 +396,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             task_context.demos = None  # the policy moved to another device since
         if task_context.demos is None:
             demonstrations = self._demonstrations.get(task)
-            self._check_demonstrations(demonstrations, task_context.num_waypoints)
+            self._check_demonstrations(demonstrations)
             bank = ContextBank.from_demonstrations(demonstrations, task_context.num_waypoints)
             task_context.demos = ContextEncoder(self.network, bank).demos(
                 np.arange(len(demonstrations))[None], self._device()
@@ -397,8 +408,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             task_context.weights_version = version
         return task_context
 
-    def _check_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int) -> None:
-        self.network.check_demo_size(len(demonstrations), num_waypoints)
+    def _check_demonstrations(self, demonstrations: list[Demonstration]) -> None:
         for index, demo in enumerate(demonstrations):
             if demo.points_world.shape[1] != self.config.num_points:
                 raise ValueError(

@@ -75,10 +75,10 @@ def test_train_step_benchmark_alternates_the_compared_option(capsys, monkeypatch
     from lerobot_instant_policy.cli.bench import main
 
     seen = fake_timing(monkeypatch, "bench_train_step", option, "samples_per_s", 3.0, 2.0)
-    assert main(["train-step", "--batch-size", "2", "--noise-draws", "2", flag, "--json"]) == 0
+    assert main(["train-step", "--batch-size", "2", "--num-frequencies", "6", flag, "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert [kwargs[option] for kwargs in seen] == [True, False] * 3
-    assert all(kwargs["batch_size"] == 2 and kwargs["noise_draws"] == 2 for kwargs in seen)
+    assert all(kwargs["batch_size"] == 2 and kwargs["num_frequencies"] == 6 for kwargs in seen)
     assert result["figure"] == "samples_per_s" and option not in result
     assert len(result[f"runs_{on_name}"]) == len(result[f"runs_{off_name}"]) == 3
     assert result[on_name] == 3.0 and result[off_name] == 2.0 and result[ratio] == 1.5
@@ -112,14 +112,14 @@ def test_train_step_benchmark_compares_one_variant_at_a_time(capsys):
     assert "compare one variant at a time" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("flag", ["--noise-draws", "--batch-size", "--repeats"])
+@pytest.mark.parametrize("flag", ["--batch-size", "--repeats"])
 def test_train_step_benchmark_refuses_non_positive_sizes(capsys, flag):
     from lerobot_instant_policy.cli.bench import main
 
     with pytest.raises(SystemExit) as exit_info:
         main(["train-step", flag, "0"])
     assert exit_info.value.code == 2
-    assert "--repeats, --batch-size and --noise-draws must be positive" in capsys.readouterr().err
+    assert "--repeats and --batch-size must be positive" in capsys.readouterr().err
 
 
 def test_env_benchmark_times_steps_observations_and_a_video_frame_per_render_size(capsys):

@@ -68,13 +68,11 @@ def test_dense_transform_attr_is_transform_attr_on_every_edge():
     torch.testing.assert_close(dense[src // nodes, src_frame, dst % nodes], sparse)
 
 
-@pytest.mark.parametrize("context_scene_edges", [False, True])
-def test_network_dense_and_reference_paths_agree(context_scene_edges):
+def test_network_dense_and_reference_paths_agree():
     """The same weights give the same flows and gripper logits, and the same gradients, on either path."""
     generator = torch.Generator().manual_seed(2)
     torch.manual_seed(0)
-    config = InstantPolicyConfig(reencode_action_clouds=False, dense_attention=True, pretrained_encoder=False,
-                                 device="cpu", context_scene_edges=context_scene_edges)
+    config = InstantPolicyConfig(reencode_action_clouds=False, pretrained_encoder=False, device="cpu")
     network = InstantPolicyNetwork(config)
     batch, num_demos, length = 2, 2, 3
     demo_T = _random_poses(batch, num_demos, length, generator=generator)
@@ -103,37 +101,30 @@ def test_network_dense_and_reference_paths_agree(context_scene_edges):
         torch.testing.assert_close(dense_grad, reference_grad, atol=1e-4, rtol=1e-3)
 
 
-@pytest.mark.parametrize("num_demos, demo_length, scene_edges", [(1, 2, False), (3, 4, False), (2, 3, True)])
-def test_dense_context_network_is_the_reference_on_demo_and_current_nodes(num_demos, demo_length, scene_edges):
-    """φ alone: the same current gripper nodes and the same gradients (demo, current and, with
-    ``context_scene_edges``, scene nodes; φ's weights) on the dense layout as on torch-geometric's layers, including
-    the last waypoint, which receives no time edge."""
+@pytest.mark.parametrize("num_demos, demo_length", [(1, 2), (3, 4), (2, 3)])
+def test_dense_context_network_is_the_reference_on_demo_and_current_nodes(num_demos, demo_length):
+    """φ alone: the same current gripper nodes and the same gradients (demo and current nodes, φ's weights) on the
+    dense layout as on torch-geometric's layers, including the last waypoint, which receives no time edge."""
     generator = torch.Generator().manual_seed(3)
     torch.manual_seed(0)
-    config = InstantPolicyConfig(dense_attention=True, pretrained_encoder=False, device="cpu",
-                                 context_scene_edges=scene_edges)
+    config = InstantPolicyConfig(pretrained_encoder=False, device="cpu")
     network = InstantPolicyNetwork(config)
     batch, hidden = 2, (network.num_keypoints, config.hidden_dim)
     T_world_ee = _random_poses(batch, num_demos, demo_length, generator=generator)
     demo = torch.randn(batch, num_demos, demo_length, *hidden, generator=generator, requires_grad=True)
     current = torch.randn(batch, *hidden, generator=generator, requires_grad=True)
-    num_scene, feature_dim = config.encoder_config.num_nodes, config.encoder_config.feature_dim
-    scene_positions = 0.2 * torch.randn(batch, num_scene, 3, generator=generator)
-    scene_features = torch.randn(batch, num_scene, feature_dim, generator=generator, requires_grad=True)
     results = []
     for dense in (True, False):
         graphs = DenseGraphs if dense else SparseGraphs
         network.graphs = graphs(network.local_network, network.context_network, network.action_network,
                                 config.num_frequencies)
-        out = network._context_features(T_world_ee, demo, current, scene_positions, scene_features)
-        parameters = [*network.context_network.parameters(), *network.scene_projection.parameters()]
-        grads = torch.autograd.grad(out.square().sum(), [demo, current, scene_features, *parameters],
+        out = network._context_features(T_world_ee, demo, current)
+        grads = torch.autograd.grad(out.square().sum(), [demo, current, *network.context_network.parameters()],
                                     allow_unused=True)
         results.append((out.detach(), grads))
     (dense_out, dense_grads), (reference_out, reference_grads) = results
     torch.testing.assert_close(dense_out, reference_out, atol=1e-5, rtol=1e-5)
     assert sum(grad is not None for grad in dense_grads) > 10
-    assert (dense_grads[2] is not None) == scene_edges  # the scene reaches φ only through its own edges
     for dense_grad, reference_grad in zip(dense_grads, reference_grads, strict=True):
         assert (dense_grad is None) == (reference_grad is None)
         if dense_grad is not None:

@@ -14,7 +14,6 @@ from lerobot_instant_policy.model.graph import (
     DEMO_TIME,
     DEMO_TO_CURRENT,
     GRIPPER_TO_GRIPPER,
-    SCENE_TO_CURRENT,
     SCENE_TO_GRIPPER,
     SCENE_TO_SCENE,
 )
@@ -91,16 +90,6 @@ def test_action_graph_links_current_to_every_action_and_actions_pairwise():
     assert src.shape[0] == batch * horizon * (horizon - 1) * K * K
     assert torch.equal(src // (K * horizon), dst // (K * horizon))
     assert not (src // K == dst // K).any()
-
-
-def test_context_scene_edges_join_each_sample_s_scene_to_its_own_current_nodes_only():
-    batch, num_scene = 3, 16
-    graph = context_graph(batch, 2, 4, K, CPU, num_scene=num_scene)
-    src, dst = graph[SCENE_TO_CURRENT].edge_index
-    assert graph["scene"].num_nodes == batch * num_scene
-    assert src.shape[0] == batch * num_scene * K  # every scene node → every current node of its sample
-    assert torch.equal(src // num_scene, dst // K)
-    assert SCENE_TO_CURRENT not in context_graph(batch, 2, 4, K, CPU).edge_types  # the paper's φ: no scene
 
 
 def _context_edges(num_demos: int, length: int) -> int:

@@ -8,6 +8,7 @@ import json
 import draccus
 import pytest
 import torch
+from draccus.utils import ParsingError
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 
 import lerobot_instant_policy  # noqa: F401  (registers the config)
@@ -47,18 +48,52 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
 
 def test_defaults_are_the_shipped_model_so_no_flag_trains_it():
     """``lerobot-train --policy.type=instant_policy`` with no policy flag trains the shipped checkpoint's model and
-    recipe: every field of its config.json but the run's own (paths, device, precision, features) is the default."""
+    recipe: its config.json holds every field of the config and nothing else, each with the default's value, but
+    ``type`` (which LeRobot writes beside the fields) and ``pretrained_path`` (which LeRobot sets when it loads one)."""
     from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
     defaults = json.loads(json.dumps(draccus.encode(config())))
-    run_specific = {"pretrained_path", "device", "use_amp", "input_features", "output_features", "type"}
-    differing = {key: (value, defaults.get(key)) for key, value in shipped.items()
-                 if key not in run_specific and defaults.get(key) != value}
+    assert set(shipped) - {"type"} == set(defaults)
+    assert shipped["type"] == "instant_policy"
+    differing = {key: (shipped[key], value) for key, value in defaults.items()
+                 if key != "pretrained_path" and shipped[key] != value}
     assert differing == {}
-    # the paper's graph stays one set of options away
-    paper_graph = config(action_scene_graph=True, reencode_action_clouds=True, num_frequencies=10, max_demos=5)
-    assert paper_graph.action_scene_graph and paper_graph.reencode_action_clouds
+    assert defaults["use_amp"] is False  # not the checkpoint's: bfloat16 autocast is the machine's choice
+
+
+def test_the_paper_preset_is_the_papers_graph_and_context():
+    paper = config(preset="paper", pretrained_encoder=False)
+    assert (paper.action_scene_graph, paper.reencode_action_clouds, paper.num_frequencies, paper.max_demos) == (
+        True, True, 10, 5)
+    small = config()
+    assert (small.action_scene_graph, small.reencode_action_clouds, small.num_frequencies, small.max_demos) == (
+        False, False, 4, 2)
+    # one option of the paper's graph on the small model: explicit values win over the preset
+    assert config(action_scene_graph=True).action_scene_graph and not config(action_scene_graph=True).reencode_action_clouds
+
+
+def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
+    """A config.json written before options were removed loads where each removed option has the value the model now
+    always has (dropped with a warning, read back as None), and is refused, naming it, where it had another; saved
+    configs hold them as None."""
+    from lerobot_instant_policy.configuration_instant_policy import RETIRED_FIELDS, SHIPPED_CHECKPOINT
+
+    shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
+    assert all(shipped[name] is None for name in RETIRED_FIELDS)
+    older = {**shipped, "dense_attention": False, "context_scene_edges": False, "flow_loss_weighting": "uniform",
+             "noise_draws": 1}
+    (tmp_path / "config.json").write_text(json.dumps(older))
+    loaded = PreTrainedConfig.from_pretrained(tmp_path)
+    assert loaded == PreTrainedConfig.from_pretrained(SHIPPED_CHECKPOINT)
+    assert "dropped removed options" in caplog.text and "noise_draws=1" in caplog.text
+    assert set(RETIRED_FIELDS) == {"dense_attention", "context_scene_edges", "flow_loss_weighting", "noise_draws"}
+    for name, value in (("noise_draws", 4), ("flow_loss_weighting", "noise"), ("context_scene_edges", True)):
+        (tmp_path / "config.json").write_text(json.dumps({**older, name: value}))
+        with pytest.raises(ParsingError) as refusal:  # draccus's, raised from the config's ValueError
+            PreTrainedConfig.from_pretrained(tmp_path)
+        assert f"options that were removed, with values that change the model: {name}={value!r}" in str(
+            refusal.value.__cause__)
 
 
 @pytest.mark.parametrize("fast_bfloat16", [True, False])
@@ -82,6 +117,8 @@ def test_preset_fills_every_size_left_unset(preset):
         values.action_layers,
     )
     assert cfg.encoder_preset == values.encoder_preset and cfg.optimizer_lr == values.optimizer_lr
+    assert (cfg.num_frequencies, cfg.action_scene_graph, cfg.reencode_action_clouds, cfg.max_demos) == (
+        values.num_frequencies, values.action_scene_graph, values.reencode_action_clouds, values.max_demos)
 
 
 def test_paper_preset_is_the_papers_model_and_small_is_smaller():
@@ -143,16 +180,14 @@ def test_optimizer_and_scheduler_presets():
         ({"gripper_flip_probability": 1.5}, r"gripper_flip_probability must lie in \[0, 1\]"),
         ({"optimizer_lr": 0.0}, "optimizer_lr and optimizer_grad_clip_norm must be positive"),
         ({"encoder_weights": "weights.pt"}, "encoder_weights must name a .safetensors file"),
-        ({"flow_loss_weighting": "snr"}, r"flow_loss_weighting must be one of \['uniform', 'noise'\]"),
         ({"mlp_ratio": 0}, "mlp_ratio must be at least 1"),
         ({"compile_mode": "fast"}, r"compile_mode must be one of \['default', 'reduce-overhead'"),
-        ({"compile_model": True, "dense_attention": False}, "compile_model and compile_inference compile the dense"),
-        ({"compile_inference": True, "dense_attention": False}, "compile_model and compile_inference compile the dense"),
         ({"max_translation": 0.0}, "max_translation and max_rotation_deg must be positive"),
         ({"replay_init_strength": 0.0}, r"replay_init_strength must lie in \(0, 1\] or be None, got 0.0"),
         ({"replay_init_strength": 1.5}, r"replay_init_strength must lie in \(0, 1\]"),
-        ({"samples_per_prediction": 0}, r"samples_per_prediction must be in 1…64, got 0"),
-        ({"samples_per_prediction": 65}, r"samples_per_prediction must be in 1…64"),
+        ({"samples_per_prediction": 0}, r"samples_per_prediction \(S\) must be an integer in the supported range 1…64, "
+                                        r"got 0"),
+        ({"samples_per_prediction": 65}, r"samples_per_prediction \(S\) must be an integer in the supported range"),
     ],
 )
 def test_invalid_values_are_refused_with_a_clear_message(overrides, message):
@@ -166,7 +201,7 @@ def test_encoder_weights_must_match_the_encoder_preset(tmp_path):
 
     path = tmp_path / "encoder.safetensors"
     save_occupancy_network(OccupancyNetwork.from_preset("small"), path)
-    assert config(encoder_weights=str(path)).require_encoder_weights() == path
+    assert config(encoder_weights=str(path)).encoder_weights_path() == path
     paper = config(encoder_preset="paper", encoder_weights=str(path))  # building the config reads nothing
     with pytest.raises(ValueError, match=r"encoder weights .*encoder\.safetensors were trained for config .*"
                        r"which does not match the requested"):
@@ -177,10 +212,12 @@ def test_encoder_weights_must_match_the_encoder_preset(tmp_path):
 
 
 def test_missing_encoder_weights_say_how_to_get_them(tmp_path):
+    from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+
     cfg = config(encoder_weights=str(tmp_path / "missing.safetensors"))  # a checkpoint carries its encoder
     with pytest.raises(FileNotFoundError, match=r"no geometry encoder weights at .*missing\.safetensors: train them "
                        r"with `lerobot-ip-pretrain-encoder --preset small"):
-        cfg.require_encoder_weights()
+        InstantPolicyPolicy(cfg)
 
 
 def test_validate_features_names_what_is_missing_or_wrong():

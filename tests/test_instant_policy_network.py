@@ -409,19 +409,6 @@ def test_bad_inputs_raise_clear_errors(key, change, message):
         _context(network, batch)
 
 
-@pytest.mark.parametrize("num_demos, length, message", [(9, 2, "N=9"), (1, 33, "L=33"), (0, 3, "N=0"), (2, 1, "L=1")])
-def test_context_size_outside_the_supported_range_is_refused(num_demos, length, message):
-    network = _network()
-    batch = _batch(num_demos=max(num_demos, 1), length=length)
-    demos = _demos(network, batch)
-    if num_demos == 0:
-        demos = DemoTensors(*(value[:, :0] for value in dataclasses.astuple(demos)))
-    with pytest.raises(ValueError, match=message):
-        network.encode_context(demos, batch["points_world"], batch["T_world_ee"], batch["gripper"])
-    with pytest.raises(ValueError, match=message):
-        network.encode_demo_waypoints(demos)
-
-
 def test_bad_action_inputs_and_step_counts_raise():
     network = _network()
     batch = _batch()
@@ -454,52 +441,3 @@ def test_loss_weighs_a_gripper_cross_entropy_and_sampling_reads_its_logit():
             confident = network.training_loss(context, batch["T_ee_actions"], torch.full_like(batch["action_gripper"],
                                                                                               expected))
             assert float(confident["gripper"]) < 1e-6  # a confident right logit costs nothing
-
-
-def test_flow_loss_weights_favour_high_noise_and_average_one():
-    diffusion = _network().diffusion
-    timesteps = torch.arange(100)
-    torch.testing.assert_close(diffusion.loss_weights(timesteps, "uniform"), torch.ones(100))
-    noise = diffusion.loss_weights(timesteps, "noise")
-    assert torch.all(noise[1:] >= noise[:-1]) and noise[0] < 0.01 and noise[-1] > 1.5
-    assert float(noise.mean()) == pytest.approx(1.0, abs=1e-5)
-    with pytest.raises(ValueError, match="unknown flow loss weighting"):
-        diffusion.loss_weights(timesteps, "snr")
-
-
-def test_flow_loss_weighting_reweighs_only_the_flow_terms():
-    """Same weights, noise and timesteps: the weighting changes the flow losses and leaves the gripper's alone."""
-    batch = _batch(batch=4)
-    losses = {}
-    for scheme in ("uniform", "noise"):
-        network = _network(flow_loss_weighting=scheme)
-        generator = torch.Generator().manual_seed(7)
-        with torch.no_grad():
-            losses[scheme] = network.training_loss(
-                _context(network, batch), batch["T_ee_actions"], batch["action_gripper"], generator
-            )
-    for part in ("translation", "rotation"):
-        assert torch.isfinite(losses["noise"][part]) and float(losses["noise"][part]) != float(losses["uniform"][part])
-    assert float(losses["noise"]["gripper"]) == pytest.approx(float(losses["uniform"]["gripper"]), rel=1e-6)
-
-
-def test_noise_draws_equal_training_on_each_row_repeated():
-    """S noise draws per row give exactly the loss of one draw on a batch in which every row appears S times in a row
-    (same generator stream): the context is computed once, the estimator is the same."""
-    batch = _batch(batch=3)
-    repeated = {key: value.repeat_interleave(2, dim=0) for key, value in batch.items()}
-    network = _network(noise_draws=2)
-    with torch.no_grad():
-        drawn = network.training_loss(_context(network, batch), batch["T_ee_actions"], batch["action_gripper"],
-                                      torch.Generator().manual_seed(3))
-        network.config.noise_draws = 1
-        single = network.training_loss(_context(network, repeated), repeated["T_ee_actions"],
-                                       repeated["action_gripper"], torch.Generator().manual_seed(3))
-    for part in ("loss", "translation", "rotation", "gripper"):
-        assert float(drawn[part]) == pytest.approx(float(single[part]), rel=1e-5), part
-
-
-@pytest.mark.parametrize("draws", [0, -1, 1.5])
-def test_noise_draws_must_be_a_positive_integer(draws):
-    with pytest.raises(ValueError, match="noise_draws must be a positive integer"):
-        _tiny_config(noise_draws=draws)

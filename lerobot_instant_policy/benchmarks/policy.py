@@ -46,6 +46,17 @@ def _config(preset: str, **overrides) -> InstantPolicyConfig:
     return config
 
 
+def _use_layout(policy, dense_attention: bool) -> None:
+    """Run ``policy``'s σ, φ and ψ in the dense layout (the network's) or, without ``dense_attention``, in the
+    torch-geometric reference layout (the same weights and outputs)."""
+    from ..model.sparse_graphs import SparseGraphs
+
+    if not dense_attention:
+        network = policy.network
+        network.graphs = SparseGraphs(network.local_network, network.context_network, network.action_network,
+                                      network.config.num_frequencies)
+
+
 def _pose_rows(rng: np.random.Generator, count: int) -> np.ndarray:
     """``(count, 8)`` random EE poses near the table (xyz, unit quaternion xyzw with w ≥ 0, gripper)."""
     quats = rng.normal(size=(count, 4))
@@ -69,12 +80,13 @@ def bench_inference(
     num_waypoints: int = 10,
     repeats: int = 5,
     policy_path: str | None = None,
+    dense_attention: bool = True,
     **overrides,
 ) -> dict:
     """Median milliseconds of one ``predict_action_chunk`` (batch 1, demo context cached).
 
     A fresh ``preset`` policy with K=4, T=8, or the checkpoint at ``policy_path`` with its own K, T and
-    ``reencode_action_clouds`` (``overrides`` still apply).
+    ``reencode_action_clouds`` (``overrides`` still apply); ``dense_attention``: :func:`_use_layout`.
     """
     from ..modeling_instant_policy import InstantPolicyPolicy
 
@@ -89,6 +101,7 @@ def bench_inference(
             preset, num_demos=num_demos, num_waypoints=num_waypoints, horizon=8, inference_steps=4, **overrides
         )
         policy = InstantPolicyPolicy(config)
+    _use_layout(policy, dense_attention)
     policy = policy.to(config.device).eval()
     rng = np.random.default_rng(0)
     policy.set_demonstrations([_demo(rng, 2 * num_waypoints, config.num_points, "bench") for _ in range(num_demos)])
@@ -111,7 +124,7 @@ def bench_inference(
     return {
         "benchmark": "inference", "preset": preset, "checkpoint": policy_path, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "dense_attention": config.dense_attention, "compile_inference": config.compile_inference,
+        "dense_attention": dense_attention, "compile_inference": config.compile_inference,
         "K": config.inference_steps, "N": num_demos, "L": num_waypoints, "T": config.horizon,
         "samples_per_prediction": config.samples_per_prediction,
         "points": config.num_points, "batch": 1,
@@ -123,7 +136,7 @@ def bench_inference(
 
 def bench_train_step(
     preset: str = "small", batch_size: int = 8, num_demos: int = 2, repeats: int = 5, frame_cache: bool = True,
-    use_amp: bool = False, fused_adamw: bool | None = None, **overrides,
+    use_amp: bool = False, fused_adamw: bool | None = None, dense_attention: bool = True, **overrides,
 ) -> dict:
     """Training samples per second of ``forward`` + ``backward`` + gradient clipping + optimizer step (N fixed), as
     one ``lerobot-train`` update with the policy's optimizer preset (``fused_adamw``: its ``fused`` option, ``None``
@@ -132,11 +145,14 @@ def bench_train_step(
     dataset; without it, the live clouds are encoded at every step and the context waypoints once (the context
     encoder's cache is warm before timing). ``use_amp`` runs ``forward`` under ``torch.autocast`` with the device's
     default dtype (bfloat16 on the CPU), as ``lerobot-train --policy.use_amp=true`` does where the config keeps it
-    (on a CPU without fast bfloat16 kernels the config turns it off; the bench still measures it)."""
+    (on a CPU without fast bfloat16 kernels the config turns it off; the bench still measures it).
+    ``dense_attention``: :func:`_use_layout`."""
     from ..modeling_instant_policy import InstantPolicyPolicy
 
     config = _config(preset, min_demos=num_demos, max_demos=num_demos, **overrides)
-    policy = InstantPolicyPolicy(config).to(config.device).train()
+    policy = InstantPolicyPolicy(config)
+    _use_layout(policy, dense_attention)
+    policy = policy.to(config.device).train()
     L, P, T = config.num_waypoints, config.num_points, config.horizon
     bank, batch = _training_inputs(np.random.default_rng(0), config, batch_size)
     encodings = _frame_encodings(policy, bank, batch) if frame_cache else None
@@ -167,7 +183,7 @@ def bench_train_step(
     return {
         "benchmark": "train-step", "preset": preset, "device": config.device, "torch_threads": torch.get_num_threads(),
         "pretrained_encoder": config.pretrained_encoder, "reencode_action_clouds": config.reencode_action_clouds,
-        "dense_attention": config.dense_attention, "frame_cache": frame_cache, "use_amp": use_amp,
+        "dense_attention": dense_attention, "frame_cache": frame_cache, "use_amp": use_amp,
         "compile_model": config.compile_model,
         "action_scene_graph": config.action_scene_graph, "num_frequencies": config.num_frequencies,
         "fused_adamw": bool(optimizer.defaults["fused"]), "batch": batch_size, "N": num_demos,
@@ -219,7 +235,8 @@ def _frame_encodings(policy, bank: ContextBank, batch: dict):
 
 def inference_benchmark(preset: str = "small", repeats: int = 5, policy_path: str | None = None,
                         compare: str | None = None, **settings) -> dict:
-    """:func:`bench_inference` with ``settings`` (config overrides, e.g. ``dense_attention``, ``compile_inference``);
+    """:func:`bench_inference` with ``settings`` (its options and config overrides, e.g. ``dense_attention``,
+    ``compile_inference``);
     with ``compare`` (a key of :data:`INFERENCE_COMPARISONS`) that setting on and off in alternation, and the ratio
     of their ``ms_per_control_step``."""
 
@@ -232,7 +249,7 @@ def inference_benchmark(preset: str = "small", repeats: int = 5, policy_path: st
 def train_step_benchmark(preset: str = "small", batch_size: int = 8, repeats: int = 5, compare: str | None = None,
                          **settings) -> dict:
     """:func:`bench_train_step` with ``settings`` (its options and config overrides, e.g. ``frame_cache``,
-    ``use_amp``, ``noise_draws``); with ``compare`` (a key of :data:`TRAIN_STEP_COMPARISONS`) that setting on and off
+    ``use_amp``, ``dense_attention``); with ``compare`` (a key of :data:`TRAIN_STEP_COMPARISONS`) that setting on and off
     in alternation, and the ratio of their ``samples_per_s``."""
 
     def run(**kwargs) -> dict:

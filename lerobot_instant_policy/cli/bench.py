@@ -196,20 +196,18 @@ def _add_train_step(commands) -> None:
                                  "compiling is timed as warmup_s, outside samples_per_s")
     train_step.add_argument("--compare-compile-model", action="store_true",
                             help="time compiled and eager layers in alternation and report the ratio")
-    train_step.add_argument("--noise-draws", type=int,
-                            help="diffusion draws per sample (--policy.noise_draws; samples/s counts samples)")
     train_step.add_argument("--json", action="store_true", help=_JSON_HELP)
     train_step.set_defaults(handler=_run_train_step)
 
 
 def _run_train_step(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    if min(args.repeats, args.batch_size, 1 if args.noise_draws is None else args.noise_draws) <= 0:
-        parser.error("--repeats, --batch-size and --noise-draws must be positive")
+    if min(args.repeats, args.batch_size) <= 0:
+        parser.error("--repeats and --batch-size must be positive")
     compare = _compared_setting(parser, args, TRAIN_STEP_COMPARE_FLAGS)
     settings = _variant_settings(args)
     settings["frame_cache"] = args.frame_cache == "true"
     settings["use_amp"] = args.amp == "true"
-    settings.update(_given_flags(args, ("fused_adamw", "compile_model", "noise_draws")))
+    settings.update(_given_flags(args, ("fused_adamw", "compile_model")))
     from ..benchmarks.policy import train_step_benchmark
 
     return train_step_benchmark(args.preset, args.batch_size, args.repeats, compare, **settings)
@@ -219,7 +217,8 @@ def _add_variant_arguments(parser: argparse.ArgumentParser) -> None:
     """The model-variant flags of ``inference`` and ``train-step`` (read back by :func:`_variant_settings`)."""
     parser.add_argument("--reencode-action-clouds", choices=["true", "false"],
                         help="override the config (default: false, the shipped model; the paper's: true)")
-    parser.add_argument("--dense-attention", choices=["true", "false"], help="override the config (default: true)")
+    parser.add_argument("--dense-attention", choices=["true", "false"],
+                        help="σ, φ and ψ in the dense layout (default: true) or the torch-geometric reference")
     parser.add_argument("--action-scene-graph", choices=["true", "false"],
                         help="override the config (default: false, the shipped model; true: the paper's graph)")
     parser.add_argument("--num-frequencies", type=int,

@@ -25,7 +25,6 @@ from ..geometry.rigid_torch import compose, fit_rigid, full_precision, make_rigi
 
 ACTION_DIM = 7  # translation 3, rotation vector 3, gripper 1
 FLOW_DIM = 6  # translation flow 3, rotation flow 3
-LOSS_WEIGHTINGS = ("uniform", "noise")  # of the flow losses over diffusion timesteps (ActionDiffusion.loss_weights)
 
 
 @full_precision()
@@ -107,20 +106,6 @@ class ActionDiffusion:
     def add_noise(self, clean: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
         """Forward process ``√ᾱ x₀ + √(1−ᾱ) ε`` at ``timesteps (B,)``, clamped to the normalised range."""
         return self.train_scheduler.add_noise(clean, noise, timesteps).clamp(-1.0, 1.0)
-
-    def loss_weights(self, timesteps: torch.Tensor, scheme: str) -> torch.Tensor:
-        """Per-sample weights ``(B,)`` of the flow losses at ``timesteps (B,)``, with mean 1 over all timesteps.
-
-        ``uniform``: 1 everywhere (the paper's loss). ``noise``: proportional to the noise variance ``1 − ᾱ_t``, so the
-        high-noise steps, where only the demonstrations can tell where the actions go, count most and the nearly clean
-        ones, which a scene-only denoiser already solves, hardly at all.
-        """
-        if scheme == "uniform":
-            return torch.ones(timesteps.shape, dtype=torch.float32, device=timesteps.device)
-        if scheme != "noise":
-            raise ValueError(f"unknown flow loss weighting {scheme!r}; known: {list(LOSS_WEIGHTINGS)}")
-        variance = 1.0 - self.train_scheduler.alphas_cumprod.to(device=timesteps.device, dtype=torch.float32)
-        return variance[timesteps] / variance.mean()
 
     @full_precision()
     def action_keypoints(self, T_ee_actions: torch.Tensor) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""σ, φ and ψ in a dense batched layout (the default implementation of :class:`~.graph.StageGraphs`): every edge
+"""σ, φ and ψ in a dense batched layout (the network's implementation of :class:`~.graph.StageGraphs`): every edge
 type of :mod:`.graph` read as ``G`` complete bipartite graphs, all source nodes of a graph → all its destination
 nodes, with a ``(n_src, n_dst)`` mask where some pairs are not edges (self loops, action ``i`` → ``i``), and run
 through :meth:`~.graph_transformer.HeteroGraphTransformer.forward_dense` (:mod:`.dense_attention`): the same weights
@@ -31,7 +31,6 @@ from .graph import (
     GRIPPER,
     GRIPPER_TO_GRIPPER,
     SCENE,
-    SCENE_TO_CURRENT,
     SCENE_TO_GRIPPER,
     SCENE_TO_SCENE,
     EdgeType,
@@ -60,13 +59,11 @@ class DenseGraphs(StageGraphs):
         return self.local_network.forward_dense({SCENE: scene_nodes, GRIPPER: gripper_nodes}, edge_attr, masks)[GRIPPER]
 
     def context(
-        self, T_world_ee: torch.Tensor, demo_nodes: torch.Tensor, current_nodes: torch.Tensor,
-        live_scene: tuple[torch.Tensor, torch.Tensor] | None, keypoints: torch.Tensor,
+        self, T_world_ee: torch.Tensor, demo_nodes: torch.Tensor, current_nodes: torch.Tensor, keypoints: torch.Tensor,
     ) -> torch.Tensor:
         """The time edges ``l + 1 → l`` carry ``[enc(t), enc(R k − k)]`` of ``T_l+1,l`` once per source waypoint
         (:func:`dense_transform_attr` on the ``B · N · (L − 1)`` waypoint pairs), the demo → current edges
-        ``enc(k_dst − k_src)`` (:func:`dense_keypoint_offset_attr`), the scene → current edges ``enc(k − p)``
-        (:func:`dense_position_attr`)."""
+        ``enc(k_dst − k_src)`` (:func:`dense_keypoint_offset_attr`)."""
         batch, num_demos, demo_length = T_world_ee.shape[:3]
         frequencies = self.num_frequencies
         edge_attr = {
@@ -80,13 +77,6 @@ class DenseGraphs(StageGraphs):
         }
         masks = {DEMO_TIME: None, DEMO_TO_CURRENT: None}
         x = {DEMO: demo_nodes, CURRENT: current_nodes}
-        if live_scene is not None:
-            scene_positions, scene_nodes = live_scene
-            edge_attr[SCENE_TO_CURRENT] = dense_position_attr(
-                scene_positions, keypoints.expand(batch, -1, -1), frequencies
-            )
-            masks[SCENE_TO_CURRENT] = None
-            x[SCENE] = scene_nodes
         return self.context_network.forward_dense(x, edge_attr, masks, dense_context_layouts())[CURRENT]
 
     def actions(
@@ -159,9 +149,8 @@ class AllWaypointsLayout(DenseLayout):
 
 def dense_context_layouts() -> dict[EdgeType, DenseLayout]:
     """:func:`~.sparse_graphs.context_graph`'s connectivity in the dense layout: every edge type's graphs (no mask
-    needed); the scene → current edges are one graph per sample, scene ``(B, M, ·)`` → current ``(B, G, ·)``, as
-    given."""
-    return {DEMO_TIME: NextWaypointLayout(), DEMO_TO_CURRENT: AllWaypointsLayout(), SCENE_TO_CURRENT: DenseLayout()}
+    needed)."""
+    return {DEMO_TIME: NextWaypointLayout(), DEMO_TO_CURRENT: AllWaypointsLayout()}
 
 
 def dense_position_attr(src_positions: torch.Tensor, dst_positions: torch.Tensor, num_frequencies: int) -> torch.Tensor:

@@ -10,13 +10,11 @@ The networks see three subgraphs:
   local graph (no self loops);
 - context (φ): node types ``demo`` and ``current`` (the gripper nodes of the demonstration and current local
   graphs); edges demo waypoint ``l+1`` → ``l`` (every keypoint pair) and every demo gripper node of a sample →
-  every current gripper node of that sample; with ``context_scene_edges`` also node type ``scene`` (the current
-  local graph's scene nodes) and edges scene → current, so that what the current nodes read of the live scene can
-  depend on the demonstrations (σ reads it before any context is seen);
+  every current gripper node of that sample;
 - action (ψ): node types ``current`` and ``action``; edges current → every action gripper node, and action ``i`` →
   action ``j`` for ``i ≠ j`` (every keypoint pair).
 
-Edge attributes: inside a local graph (and φ's scene → current edges, in the current EE frame), ``enc(p_dst − p_src)`` (sin/cos at ``2⁰π … 2⁹π`` plus the raw vector).
+Edge attributes: inside a local graph, ``enc(p_dst − p_src)`` (sin/cos at ``2⁰π … 2⁹π`` plus the raw vector).
 Between frames of one world (demo time edges, current → action, action → action), the attribute describes the
 relative transform ``T_src,dst = T_src⁻¹ T_dst = (R, t)``: ``[enc(t), enc(R k − k)]`` with ``k`` the destination's
 keypoint, i.e. the translation and the displacement that the rotation gives that keypoint. Demonstrations and the
@@ -26,8 +24,7 @@ frame. Every attribute is relative, so moving a whole world rigidly changes none
 Two implementations of :class:`StageGraphs` give the same outputs and gradients with the same weights
 (``tests/test_dense_attention.py``): :class:`~.sparse_graphs.SparseGraphs` builds these graphs as torch_geometric
 ``HeteroData`` and runs PyG's layers on their edge lists (the reference); :class:`~.dense_graphs.DenseGraphs` lays
-every edge type out as batches of complete bipartite graphs and runs the same layers densely (the default,
-``dense_attention``).
+every edge type out as batches of complete bipartite graphs and runs the same layers densely (the network's).
 """
 
 from __future__ import annotations
@@ -48,7 +45,6 @@ SCENE_TO_GRIPPER = (SCENE, "local", GRIPPER)
 GRIPPER_TO_GRIPPER = (GRIPPER, "local", GRIPPER)
 DEMO_TIME = (DEMO, "time", DEMO)
 DEMO_TO_CURRENT = (DEMO, "context", CURRENT)
-SCENE_TO_CURRENT = (SCENE, "local", CURRENT)
 CURRENT_TO_ACTION = (CURRENT, "plan", ACTION)
 ACTION_TO_ACTION = (ACTION, "plan", ACTION)
 EdgeType = tuple[str, str, str]
@@ -68,11 +64,8 @@ def local_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
     return {edge_type: position_dim(num_frequencies) for edge_type in (SCENE_TO_SCENE, SCENE_TO_GRIPPER, GRIPPER_TO_GRIPPER)}
 
 
-def context_edge_dims(num_frequencies: int, scene_edges: bool = False) -> dict[EdgeType, int]:
-    dims = {DEMO_TIME: transform_dim(num_frequencies), DEMO_TO_CURRENT: position_dim(num_frequencies)}
-    if scene_edges:
-        dims[SCENE_TO_CURRENT] = position_dim(num_frequencies)
-    return dims
+def context_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
+    return {DEMO_TIME: transform_dim(num_frequencies), DEMO_TO_CURRENT: position_dim(num_frequencies)}
 
 
 def action_edge_dims(num_frequencies: int) -> dict[EdgeType, int]:
@@ -122,8 +115,7 @@ class StageGraphs(ABC):
 
     @abstractmethod
     def context(
-        self, T_world_ee: torch.Tensor, demo_nodes: torch.Tensor, current_nodes: torch.Tensor,
-        live_scene: tuple[torch.Tensor, torch.Tensor] | None, keypoints: torch.Tensor,
+        self, T_world_ee: torch.Tensor, demo_nodes: torch.Tensor, current_nodes: torch.Tensor, keypoints: torch.Tensor,
     ) -> torch.Tensor:
         """φ: the demonstrations' gripper nodes → the current gripper nodes.
 
@@ -131,9 +123,6 @@ class StageGraphs(ABC):
             T_world_ee: ``(B, N, L, 4, 4)`` the demo waypoints' EE poses in their demonstration's world frame.
             demo_nodes: ``(B, N, L, G, H)`` the demo gripper nodes after σ.
             current_nodes: ``(B, G, H)`` the current gripper nodes after σ.
-            live_scene: the current local graph's scene nodes for φ's scene → current edges (``context_scene_edges``),
-                positions ``(B, M, 3)`` in the current EE frame and features ``(B, M, H)``; ``None``: φ has no such
-                edges.
             keypoints: ``(G, 3)``.
 
         Returns:

@@ -37,15 +37,10 @@ from .encodings import encoding_dim, sinusoidal_encoding
 from .geometry_encoder import GeometryEncoder
 from .graph import ACTION, CURRENT, GRIPPER, StageGraphs, action_edge_dims, context_edge_dims, local_edge_dims
 from .graph_transformer import HeteroGraphTransformer, fixed_weights
-from .sparse_graphs import SparseGraphs
 
 if TYPE_CHECKING:  # the policy's config is handed in as it is (LeRobot's pattern); only its fields are read here
     from ..configuration_instant_policy import InstantPolicyConfig
 
-
-# N and L the context graph is built for (any N and L in these ranges work without retraining).
-SUPPORTED_DEMOS = (1, 8)
-SUPPORTED_WAYPOINTS = (2, 32)
 
 
 @dataclass
@@ -124,15 +119,14 @@ class InstantPolicyNetwork(nn.Module):
             for the sizes (``hidden_dim``, ``num_heads``, ``mlp_ratio``, ``local_layers``, ``context_layers``,
             ``action_layers``, ``encoder_config``, ``num_points``, ``horizon``, ``gripper_keypoints``,
             ``num_frequencies``), the diffusion (``diffusion_train_steps``, ``inference_steps``, ``max_translation``,
-            ``max_rotation_deg``, ``flow_loss_weighting``, ``gripper_loss_weight``) and the graph variants
-            (``reencode_action_clouds``, ``dense_attention``, ``action_scene_graph``, ``context_scene_edges``), and
-            ``compile_model`` / ``compile_inference`` / ``compile_mode`` (σ, φ and ψ compiled for the training step,
-            for sampling).
+            ``max_rotation_deg``, ``gripper_loss_weight``), the graph (``action_scene_graph``,
+            ``reencode_action_clouds``) and ``compile_model`` / ``compile_inference`` / ``compile_mode`` (σ, φ and ψ
+            compiled for the training step, for sampling).
 
     Attributes:
-        graphs: σ, φ and ψ (``local_network``, ``context_network``, ``action_network``) on their graphs
-            (:class:`~.graph.StageGraphs`): :class:`~.dense_graphs.DenseGraphs` with ``dense_attention``, else
-            :class:`~.sparse_graphs.SparseGraphs`; the same weights and outputs.
+        graphs: σ, φ and ψ (``local_network``, ``context_network``, ``action_network``) on their graphs in the dense
+            layout (:class:`~.dense_graphs.DenseGraphs`; the torch-geometric layout
+            :class:`~.sparse_graphs.SparseGraphs` is its reference, with the same weights and outputs).
     """
 
     def __init__(self, config: InstantPolicyConfig):
@@ -158,15 +152,13 @@ class InstantPolicyNetwork(nn.Module):
             local_edge_dims(config.num_frequencies), [GRIPPER], num_layers=config.local_layers, **stage
         )
         self.context_network = HeteroGraphTransformer(
-            context_edge_dims(config.num_frequencies, config.context_scene_edges), [CURRENT],
+            context_edge_dims(config.num_frequencies), [CURRENT],
             num_layers=config.context_layers, **stage
         )
         self.action_network = HeteroGraphTransformer(
             action_edge_dims(config.num_frequencies), [ACTION], num_layers=config.action_layers, **stage
         )
-        # σ, φ and ψ run in one of two layouts with the same weights and outputs: chosen once, here.
-        graphs = DenseGraphs if config.dense_attention else SparseGraphs
-        self.graphs: StageGraphs = graphs(
+        self.graphs: StageGraphs = DenseGraphs(
             self.local_network, self.context_network, self.action_network, config.num_frequencies
         )
         self.translation_head = _head(hidden, 3)
@@ -217,13 +209,6 @@ class InstantPolicyNetwork(nn.Module):
             raise ValueError(f"{name} must have shape {tuple(shape)}, got {tuple(value.shape)}")
         if not torch.isfinite(value).all():
             raise ValueError(f"{name} contains NaN or inf values")
-
-    def check_demo_size(self, num_demos: int, demo_length: int) -> None:
-        """Raise ``ValueError`` unless N and L lie in ``SUPPORTED_DEMOS`` and ``SUPPORTED_WAYPOINTS``."""
-        for name, value, (low, high) in (("number of demonstrations N", num_demos, SUPPORTED_DEMOS),
-                                         ("number of waypoints L", demo_length, SUPPORTED_WAYPOINTS)):
-            if not low <= value <= high:
-                raise ValueError(f"{name}={value} is outside the supported {low}…{high}")
 
     # ------------------------------------------------------------------ node features
     @full_precision()
@@ -286,7 +271,6 @@ class InstantPolicyNetwork(nn.Module):
         if demos.T_world_ee.ndim != 5:
             raise ValueError(f"demo T_world_ee must have shape (B, N, L, 4, 4), got {tuple(demos.T_world_ee.shape)}")
         leading = (demos.batch_size, demos.num_demos, demos.num_waypoints)
-        self.check_demo_size(demos.num_demos, demos.num_waypoints)
         self._check_tensor("demo T_world_ee", demos.T_world_ee, (*leading, 4, 4))
         self._check_tensor("demo gripper_open", demos.gripper_open, leading)
         self._check_scene_nodes("demo", demos.scene_positions, demos.scene_features, leading)
@@ -357,29 +341,18 @@ class InstantPolicyNetwork(nn.Module):
 
         demo_features = gripper_features[:, :-1].unflatten(1, (num_demos, demo_length))
         return InstantPolicyContext(
-            current_gripper_features=self._context_features(
-                demos.T_world_ee, demo_features, gripper_features[:, -1], scene_positions, scene_features
-            ),
+            current_gripper_features=self._context_features(demos.T_world_ee, demo_features, gripper_features[:, -1]),
             points_ee=points_ee,
             scene_positions_ee=scene_positions,
             scene_features=scene_features,
         )
 
     def _context_features(
-        self,
-        T_world_ee: torch.Tensor,
-        demo_features: torch.Tensor,
-        current_features: torch.Tensor,
-        scene_positions: torch.Tensor,
-        scene_features: torch.Tensor,
+        self, T_world_ee: torch.Tensor, demo_features: torch.Tensor, current_features: torch.Tensor
     ) -> torch.Tensor:
         """φ: demo waypoint poses ``(B, N, L, 4, 4)`` in their demonstration's world frame, demo gripper nodes
-        ``(B, N, L, G, H)`` and current gripper nodes ``(B, G, H)`` after σ → the current gripper nodes ``(B, G, H)``.
-        The live scene nodes ``(B, M, 3)`` (current EE frame), ``(B, M, D)`` are read only with
-        ``context_scene_edges``."""
-        live_scene = (scene_positions, self._scene_nodes(scene_features)) if self.config.context_scene_edges else None
-        keypoints = self._keypoints(T_world_ee)
-        return self.graphs.context(T_world_ee, demo_features, current_features, live_scene, keypoints)
+        ``(B, N, L, G, H)`` and current gripper nodes ``(B, G, H)`` after σ → the current gripper nodes ``(B, G, H)``."""
+        return self.graphs.context(T_world_ee, demo_features, current_features, self._keypoints(T_world_ee))
 
     # ------------------------------------------------------------------ action part (every denoising step)
     def denoise(
@@ -429,9 +402,7 @@ class InstantPolicyNetwork(nn.Module):
         action_gripper: torch.Tensor,
         generator: torch.Generator | None = None,
     ) -> dict[str, torch.Tensor]:
-        """Noise the actions at random timesteps and regress the flows and gripper at the action gripper nodes;
-        with ``config.noise_draws`` = S > 1 every row is noised S times (its context computed once) and the losses
-        average over the ``B · S`` draws.
+        """Noise the actions at random timesteps and regress the flows and gripper at the action gripper nodes.
 
         Args:
             T_ee_actions: ``(B, T, 4, 4)`` clean action poses in the current EE frame (clamped to the bounds).
@@ -439,19 +410,13 @@ class InstantPolicyNetwork(nn.Module):
 
         Returns:
             ``loss`` = translation + rotation + ``gripper_loss_weight`` · gripper, and its parts: ``translation`` and
-            ``rotation`` (mean squared errors of the normalised flows, each sample weighted by
-            :meth:`ActionDiffusion.loss_weights` of its timestep under ``flow_loss_weighting``) and ``gripper`` (binary cross-entropy of the
-            gripper logits against the clean command). The flows drive the gradients: the gripper is a binary label
+            ``rotation`` (mean squared errors of the normalised flows, every timestep weighted alike, as in the paper)
+            and ``gripper`` (binary cross-entropy of the gripper logits against the clean command). The flows drive the gradients: the gripper is a binary label
             that a cross-entropy learns fast, while its squared error on ±1 targets dominated the sum.
         """
         batch, horizon = context.batch_size, self.config.horizon
         self._check_tensor("T_ee_actions", T_ee_actions, (batch, horizon, 4, 4))
         self._check_tensor("action_gripper", action_gripper, (batch, horizon))
-        if self.config.noise_draws > 1:
-            draws = self.config.noise_draws
-            context, batch = context.repeat_rows(draws), batch * draws
-            T_ee_actions = T_ee_actions.repeat_interleave(draws, dim=0)
-            action_gripper = action_gripper.repeat_interleave(draws, dim=0)
         device = T_ee_actions.device
         noise_device = generator.device if generator is not None else device
         clean = self.diffusion.normalize(T_ee_actions, action_gripper)
@@ -463,10 +428,9 @@ class InstantPolicyNetwork(nn.Module):
         T_clean, _ = self.diffusion.unnormalize(clean)
         flow_target = self.diffusion.flow_targets(T_clean, T_noisy)
         prediction = self.denoise(context, T_noisy, gripper_noisy, timesteps)
-        weights = self.diffusion.loss_weights(timesteps, self.config.flow_loss_weighting).to(prediction.dtype)
         squared = (prediction[..., :FLOW_DIM] - flow_target).square()  # (B, T, G, 6)
-        translation = (weights * squared[..., :3].mean(dim=(1, 2, 3))).mean()
-        rotation = (weights * squared[..., 3:].mean(dim=(1, 2, 3))).mean()
+        translation = squared[..., :3].mean(dim=(1, 2, 3)).mean()
+        rotation = squared[..., 3:].mean(dim=(1, 2, 3)).mean()
         gripper_open = (clean[..., 6:7] > 0).to(prediction.dtype).expand_as(prediction[..., 6])
         gripper = nn.functional.binary_cross_entropy_with_logits(prediction[..., 6], gripper_open)
         loss = translation + rotation + self.config.gripper_loss_weight * gripper
@@ -491,7 +455,7 @@ class InstantPolicyNetwork(nn.Module):
         """DDIM-sample the actions, from pure noise or from a noised guess ``initial (B, T, 7)`` (the diffusion
         variable of :meth:`ActionDiffusion.normalize`) with ``strength`` (:meth:`ActionDiffusion.sample`).
 
-        With ``num_samples`` S > 1 (beyond the paper, issue 30.4) each row is sampled S times from S noise draws, as
+        With ``num_samples`` S > 1 (beyond the paper) each row is sampled S times from S noise draws, as
         one batch of ``B · S`` rows, and the samples are averaged: per action the mean pose
         (:func:`~..geometry.rigid_torch.mean_rigid`: mean translation, chordal mean rotation) and the sign of the
         mean gripper variable. S = 1 is the paper's single sample.

@@ -129,14 +129,24 @@ def load_occupancy_network(path: str | Path, expected: GeometryEncoderConfig | N
 
 def load_geometry_encoder(path: str | Path, expected: GeometryEncoderConfig | None = None) -> GeometryEncoder:
     """Only the encoder of a weights file (the decoder is not needed by the policy)."""
-    sidecar = read_sidecar(path)
-    encoder_config = GeometryEncoderConfig.from_dict(sidecar["encoder"])
+    encoder_config = GeometryEncoderConfig.from_dict(read_sidecar(path)["encoder"])
     _check_expected(path, encoder_config, expected)
     encoder = GeometryEncoder(encoder_config)
+    _load_encoder_tensors(encoder, path)
+    return encoder
+
+
+def load_encoder_weights(encoder: GeometryEncoder, path: str | Path) -> None:
+    """Load the encoder of a weights file into ``encoder``; ``ValueError`` when the file was trained for another
+    architecture than ``encoder.config``."""
+    _check_expected(path, GeometryEncoderConfig.from_dict(read_sidecar(path)["encoder"]), encoder.config)
+    _load_encoder_tensors(encoder, path)
+
+
+def _load_encoder_tensors(encoder: GeometryEncoder, path: str | Path) -> None:
     prefix = "encoder."
     tensors = {key[len(prefix) :]: value for key, value in load_file(str(path)).items() if key.startswith(prefix)}
     _load_strict(encoder, tensors, path)
-    return encoder
 
 
 def _load_strict(module: nn.Module, tensors: dict[str, torch.Tensor], path) -> None:

@@ -29,7 +29,6 @@ from .graph import (
     GRIPPER,
     GRIPPER_TO_GRIPPER,
     SCENE,
-    SCENE_TO_CURRENT,
     SCENE_TO_GRIPPER,
     SCENE_TO_SCENE,
     StageGraphs,
@@ -87,10 +86,9 @@ def local_graph(num_graphs: int, num_scene: int, num_keypoints: int, device: tor
 @functools.lru_cache(maxsize=32)
 @torch.inference_mode(False)
 def context_graph(
-    batch_size: int, num_demos: int, demo_length: int, num_keypoints: int, device: torch.device, num_scene: int = 0
+    batch_size: int, num_demos: int, demo_length: int, num_keypoints: int, device: torch.device
 ) -> HeteroData:
-    """Connectivity of φ's graph: demo waypoint ``l+1`` → ``l`` and all demo gripper nodes → current gripper nodes;
-    with ``num_scene > 0`` also the ``num_scene`` scene nodes of each sample's current frame → its current nodes."""
+    """Connectivity of φ's graph: demo waypoint ``l+1`` → ``l`` and all demo gripper nodes → current gripper nodes."""
     graph = HeteroData()
     graph[DEMO].num_nodes = batch_size * num_demos * demo_length * num_keypoints
     graph[CURRENT].num_nodes = batch_size * num_keypoints
@@ -105,12 +103,6 @@ def context_graph(
     )
     graph[DEMO_TO_CURRENT].src_keypoint = (src % num_keypoints).repeat(batch_size)
     graph[DEMO_TO_CURRENT].dst_keypoint = dst.repeat(batch_size)
-    if num_scene:
-        graph[SCENE].num_nodes = batch_size * num_scene
-        src, dst = _all_pairs(num_scene, num_keypoints)
-        graph[SCENE_TO_CURRENT].edge_index = torch.stack(
-            [(samples * num_scene + src).flatten(), (samples * num_keypoints + dst).flatten()]
-        )
     return _to(graph, device)
 
 
@@ -202,11 +194,10 @@ class SparseGraphs(StageGraphs):
 
     def context(
         self, T_world_ee: torch.Tensor, demo_nodes: torch.Tensor, current_nodes: torch.Tensor,
-        live_scene: tuple[torch.Tensor, torch.Tensor] | None, keypoints: torch.Tensor,
+        keypoints: torch.Tensor,
     ) -> torch.Tensor:
         batch, num_demos, demo_length = T_world_ee.shape[:3]
-        num_scene = 0 if live_scene is None else live_scene[0].shape[1]
-        graph = context_graph(batch, num_demos, demo_length, len(keypoints), T_world_ee.device, num_scene)
+        graph = context_graph(batch, num_demos, demo_length, len(keypoints), T_world_ee.device)
         demo_frames = T_world_ee.reshape(-1, 4, 4)
         frequencies = self.num_frequencies
         edge_attr = {
@@ -217,13 +208,6 @@ class SparseGraphs(StageGraphs):
             DEMO: demo_nodes.reshape(-1, demo_nodes.shape[-1]),
             CURRENT: current_nodes.reshape(-1, current_nodes.shape[-1]),
         }
-        if live_scene is not None:
-            scene_positions, scene_nodes = live_scene
-            edge_attr[SCENE_TO_CURRENT] = position_attr(
-                scene_positions.reshape(-1, 3), keypoints.repeat(batch, 1), graph[SCENE_TO_CURRENT].edge_index,
-                frequencies,
-            )
-            x[SCENE] = scene_nodes.reshape(-1, scene_nodes.shape[-1])
         return self.context_network(x, graph.edge_index_dict, edge_attr)[CURRENT].view(current_nodes.shape)
 
     def actions(
