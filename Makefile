@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-study eval-suite perception-eval eval-metaworld test install clean
+.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-suite-instant results-study eval-suite perception-eval eval-metaworld test install clean
 
 install: $(INSTALLED)
 
@@ -139,35 +139,49 @@ perception-eval: $(INSTALLED)
 	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy demo_replay --obs-type rgbd --episodes 10 \
 		--out outputs/perception_eval --run-name rgbd
 
-# docs/results.md: the suite protocol (evaluation/suite.py): every task x 3 disjoint demonstration sets x 10 episodes,
-# N=2, the same seeds for every policy; instant_policy also with each task handed the next task's demonstrations (the
-# context swap); then the table with Wilson 95% intervals, grouped by task family. Then the K / N / L study.
-# lerobot-eval renders a video frame after every step of its first 10 episodes: at 64 px instead of the env's 256 one
-# frame takes about a tenth of the time (lerobot-ip-bench env), and the frames never enter the success figures.
-# Beside the faithful path: the two options beyond the paper (samples_per_prediction, the replay prior per object) and
-# demo_replay per object. SUITE_ARGS=--resume continues an interrupted run (cells of the same settings are kept).
+# docs/results.md: the suite protocol (evaluation/suite.py, docs/evaluation.md) on the held-out test split (SPLIT=dev
+# for studies and option choices): every task x 3 disjoint demonstration sets x 10 episodes, N=2, the same seeds for
+# every policy, success held for the task's hold time; every policy that reads demonstrations also with each task
+# handed another group's demonstrations (the context swap). Then one table with Wilson 95% intervals, the columns'
+# manifests (seeds, demonstration fingerprints, each episode) and the paired differences: the shipped checkpoint
+# against demo_replay, and each option against the baseline it starts from. lerobot-eval renders a video frame after
+# every step of its first 10 episodes: at 64 px a frame takes about a tenth of the time and changes no observation.
+# SUITE_ARGS=--resume continues an interrupted run (cells of the same settings are kept).
 CKPT ?= lerobot_instant_policy/assets/checkpoints/instant_policy
-SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo-sets 3 --out outputs/results/suite \
+SPLIT ?= test
+SUITE_OUT ?= outputs/results/suite_$(SPLIT)
+SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo-sets 3 --split $(SPLIT) --out $(SUITE_OUT) \
 	--env-arg render_size=64 $(SUITE_ARGS)
+IP = --policy instant_policy --policy-path $(CKPT)
+OPTION = --policy-arg replay_init_strength=0.125 --policy-arg inference_steps=8 --policy-arg replay_per_object=true
+PER_OBJECT = --policy demo_replay --policy-arg registration_per_object=true
+SUITE_COLUMNS = instant_policy instant_policy-swap ip_per_object_s0125_K8 ip_per_object_s0125_K8-swap demo_replay \
+	demo_replay-swap demo_replay_per_object demo_replay_per_object-swap do_nothing
 STUDY = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy instant_policy --policy-path $(CKPT) \
-	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --out outputs/results/study --env-arg render_size=64
+	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --split dev --out outputs/results/study --env-arg render_size=64
 STUDY_TASKS ?= push_button,open_drawer
 results: results-suite results-study
 
 results-suite: $(INSTALLED)
-	$(SUITE) --policy instant_policy --policy-path $(CKPT)
-	$(SUITE) --policy instant_policy --policy-path $(CKPT) --swap
-	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg samples_per_prediction=8 --run-name instant_policy_S8
-	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg replay_init_strength=0.25 \
-		--policy-arg replay_per_object=true --run-name ip_per_object_s025
-	$(SUITE) --policy instant_policy --policy-path $(CKPT) --policy-arg replay_init_strength=0.125 \
-		--policy-arg inference_steps=8 --policy-arg replay_per_object=true --run-name ip_per_object_s0125_K8
+	$(SUITE) $(IP)
+	$(SUITE) $(IP) --swap
+	$(SUITE) $(IP) $(OPTION) --run-name ip_per_object_s0125_K8
+	$(SUITE) $(IP) $(OPTION) --swap --run-name ip_per_object_s0125_K8-swap
 	$(SUITE) --policy demo_replay
-	$(SUITE) --policy demo_replay --policy-arg registration_per_object=true --run-name demo_replay_per_object
+	$(SUITE) --policy demo_replay --swap
+	$(SUITE) $(PER_OBJECT) --run-name demo_replay_per_object
+	$(SUITE) $(PER_OBJECT) --swap --run-name demo_replay_per_object-swap
 	$(SUITE) --policy do_nothing
-	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,instant_policy instant_policy-swap instant_policy_S8 \
-		ip_per_object_s025 ip_per_object_s0125_K8 demo_replay demo_replay_per_object do_nothing,$(run)=outputs/results/suite/runs/$(run)) \
-		--out docs/results_suite
+	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,$(SUITE_COLUMNS),$(run)=$(SUITE_OUT)/runs/$(run)) \
+		--paired instant_policy=demo_replay --paired ip_per_object_s0125_K8=demo_replay_per_object \
+		--paired demo_replay_per_object=demo_replay --paired instant_policy=instant_policy-swap \
+		--paired ip_per_object_s0125_K8=ip_per_object_s0125_K8-swap --out docs/results_suite_$(SPLIT)
+
+# The earlier success criterion (the first step in the goal state counts) beside the held one, once, for the shipped
+# checkpoint and demo_replay on the same split (docs/results.md).
+results-suite-instant: $(INSTALLED)
+	$(SUITE) $(IP) --success instant --run-name instant_policy-instant
+	$(SUITE) --policy demo_replay --success instant --run-name demo_replay-instant
 
 results-study: $(INSTALLED)
 	for K in 1 2 4 8; do $(STUDY) --policy-arg inference_steps=$$K --run-name K$$K || exit 1; done
@@ -176,24 +190,31 @@ results-study: $(INSTALLED)
 	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,K1 K2 K4 K8 N1 N3 N4 L2 L5 L15,$(run)=outputs/results/study/runs/$(run)) \
 		--out docs/results_study
 
-# docs/metaworld.md (issue 31): the shipped checkpoint (and its context-swap control), demo_replay, do_nothing and
-# MetaWorld's scripted expert in LeRobot's MetaWorld env (--env.type=metaworld_pointcloud) on MT10,
-# METAWORLD_EPISODES episodes per task, N=2 expert demonstrations (seeds 0, 1), evaluation seeds from 1000, then the
-# table. Needs the metaworld extra (in .[dev]) and
-# an OpenGL library for MuJoCo's offscreen rendering: libosmesa6 is installed with apt-get where it is missing.
+# docs/metaworld.md: the suite protocol in LeRobot's MetaWorld env (--env.type=metaworld_pointcloud) on MT10, the
+# test split, 3 sets of N=2 expert demonstrations x METAWORLD_EPISODES episodes per task: MetaWorld's scripted expert
+# (the upper bound), do_nothing, demo_replay and the shipped checkpoint, each policy that reads demonstrations also
+# with another kind of task's (the swap), then one table with the columns' manifests and paired differences.
+# make eval-metaworld METAWORLD_TASKS=ml45_test: ML45's held-out tasks. Needs the metaworld extra (in .[dev]) and
+# an OpenGL library for MuJoCo's offscreen rendering (libosmesa6, installed by gl-library where it can be).
 METAWORLD_EPISODES ?= 10
-METAWORLD = MUJOCO_GL=osmesa OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-metaworld --episodes $(METAWORLD_EPISODES) \
-	--out outputs/eval_metaworld
+METAWORLD_TASKS ?= mt10
+METAWORLD_SETS ?= 3
+METAWORLD_OUT ?= outputs/eval_metaworld_$(METAWORLD_TASKS)_$(SPLIT)
+METAWORLD = MUJOCO_GL=osmesa OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-metaworld --tasks $(METAWORLD_TASKS) \
+	--episodes $(METAWORLD_EPISODES) --demo-sets $(METAWORLD_SETS) --split $(SPLIT) --out $(METAWORLD_OUT) $(SUITE_ARGS)
+METAWORLD_COLUMNS = metaworld_expert do_nothing demo_replay demo_replay-swap instant_policy instant_policy-swap
 eval-metaworld: $(INSTALLED) gl-library
 	@ldconfig -p | grep -q libOSMesa || { echo "error: MuJoCo renders with OSMesa here (MUJOCO_GL=osmesa): install \
 	Debian's libosmesa6 (apt-get install libosmesa6, as root)"; exit 1; }
 	$(METAWORLD) --policy metaworld_expert
 	$(METAWORLD) --policy do_nothing
 	$(METAWORLD) --policy demo_replay
-	$(METAWORLD) --policy instant_policy --policy-path $(CKPT)
-	$(METAWORLD) --policy instant_policy --policy-path $(CKPT) --swap
-	$(VENV)/bin/lerobot-ip-eval-table $(foreach policy,metaworld_expert do_nothing demo_replay instant_policy instant_policy-swap,\
-		$(policy)=outputs/eval_metaworld/runs/$(policy)) --env-type metaworld_pointcloud --out docs/results_metaworld
+	$(METAWORLD) --policy demo_replay --swap
+	$(METAWORLD) $(IP)
+	$(METAWORLD) $(IP) --swap
+	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,$(METAWORLD_COLUMNS),$(run)=$(METAWORLD_OUT)/runs/$(run)) \
+		--env-type metaworld_pointcloud --paired instant_policy=demo_replay --paired instant_policy=instant_policy-swap \
+		--paired demo_replay=demo_replay-swap --out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)

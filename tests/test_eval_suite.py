@@ -14,6 +14,7 @@ from lerobot_instant_policy.cli import demo as demo_cli
 from lerobot_instant_policy.cli import eval_suite
 from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 from lerobot_instant_policy.evaluation import demo, side_by_side, suite
+from lerobot_instant_policy.evaluation.success_table import TASK_GROUPS, task_group
 from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings
 
 
@@ -34,18 +35,32 @@ def test_lerobot_eval_command_names_task_policy_and_demos(tmp_path):
 
 def test_demonstration_sets_have_disjoint_seeds_and_the_same_scenes_for_every_policy(tmp_path):
     """Set s records from seed 100 s and evaluates its own 10 seeds; two policies get the same seeds; the swap reads
-    the next task's demonstrations (the last task the first's) from their own folder."""
+    the demonstrations of a task of the next group from their own folder."""
     settings = SuiteSettings(out=tmp_path, episodes=10, demo_sets=3)
     assert [settings.demo_seed_of(s) for s in range(3)] == [0, 100, 200]
     assert [settings.eval_seed_of(s) for s in range(3)] == [1000, 1010, 1020]
     other = SuiteSettings(policy="instant_policy", policy_path="ckpt", out=tmp_path, episodes=10, demo_sets=3)
     assert [other.eval_seed_of(s) for s in range(3)] == [settings.eval_seed_of(s) for s in range(3)]
     tasks = ["push_button", "pick_and_lift", "open_drawer"]
-    assert [suite.swap_source(task, tasks) for task in tasks] == ["pick_and_lift", "open_drawer", "push_button"]
+    assert suite.swap_sources(tasks, task_group) == {"push_button": "open_drawer", "pick_and_lift": "open_drawer",
+                                                     "open_drawer": "push_button"}
     own = suite.demo_root(tmp_path, "push_button", 2, 100)
     swapped = suite.demo_root(tmp_path, "push_button", 2, 100, source="pick_and_lift")
     assert own != swapped and swapped.name.endswith("-from-pick_and_lift")
     assert SuiteSettings(out=tmp_path, swap=True).runs_dir == tmp_path / "runs" / "demo_replay-swap"
+
+
+def test_swap_reads_another_groups_task_on_every_task_of_the_suite():
+    """On the whole suite every task reads the demonstrations of a task of another group (something else to do),
+    each task's demonstrations are read once; within one group, the task half the list ahead."""
+    tasks = sorted(task for group in TASK_GROUPS.values() for task in group)  # the built-in suite, as `all` orders it
+    sources = suite.swap_sources(tasks, task_group)
+    assert set(sources) == set(tasks) and sorted(sources.values()) == sorted(tasks)
+    assert all(task_group(source) != task_group(task) for task, source in sources.items())
+    assert sources["push_button"] != "pick_and_lift" and sources["open_drawer"] != "close_drawer"
+    assert suite.swap_sources(["a", "b", "c", "d"], lambda task: "one") == {"a": "c", "b": "d", "c": "a", "d": "b"}
+    with pytest.raises(SuiteError, match="at least two tasks"):
+        suite.swap_sources(["a"], lambda task: "one")
 
 
 @pytest.mark.parametrize(("overrides", "message"), [
@@ -53,6 +68,7 @@ def test_demonstration_sets_have_disjoint_seeds_and_the_same_scenes_for_every_po
     ({"policy": "instant_policy"}, "needs a policy_path"),
     ({"policy": "do_nothing", "swap": True}, "needs a policy that reads demonstrations"),
     ({"demo_seed": 1000}, "overlap evaluation seeds"),
+    ({"success": "eventually"}, "success must be one of"),
     ({"eval_seed": 250}, "overlap evaluation seeds"),
 ])
 def test_bad_suite_settings_are_refused(tmp_path, overrides, message):
@@ -253,7 +269,11 @@ def test_resume_keeps_the_cells_evaluated_with_the_same_settings_and_refuses_oth
         with pytest.raises(SuiteError, match=changed):
             suite.run_suite(dataclasses.replace(resumed, **other), tasks, report=lambda line: None)
     swapped = SuiteSettings(policy="demo_replay", out=tmp_path, episodes=2, demo_sets=1, swap=True)
-    monkeypatch.setattr(suite, "record_demonstrations", lambda *args: None)
+    def fake_record(settings, task, demos, seed, source):
+        (demos / "data").mkdir(parents=True)
+        (demos / "data" / "episodes.parquet").write_text(f"{source} {seed}")
+
+    monkeypatch.setattr(suite, "record_demonstrations", fake_record)
     suite.run_suite(swapped, tasks, report=lambda line: None)
     with pytest.raises(SuiteError, match="swap_source"):
         suite.run_suite(SuiteSettings(policy="demo_replay", out=tmp_path, episodes=2, demo_sets=1, swap=True,

@@ -1,5 +1,6 @@
 """``lerobot-ip-eval-table``: the success table over lerobot-eval output directories, per task, per task group and
-overall, with Wilson 95% intervals."""
+overall, with Wilson 95% intervals (these runs have no suite manifests: joined with ``--unchecked``; the manifest
+checks and paired differences are tested in ``test_eval_manifest.py``)."""
 
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def runs(tmp_path):
 
 def test_table_groups_policies_and_tasks(runs, tmp_path, capsys):
     out = tmp_path / "table" / "success"
-    code = main([f"demo_replay={runs / 'replay'}", f"instant_policy={runs / 'ip'}", "--out", str(out), "--json"])
+    code = main(["--unchecked", f"demo_replay={runs / 'replay'}", f"instant_policy={runs / 'ip'}", "--out", str(out), "--json"])
     assert code == 0
     printed = json.loads(capsys.readouterr().out)
     rows = {(row["task"], row["policy"]): row for row in printed["rows"]}
@@ -66,7 +67,7 @@ def test_table_groups_policies_and_tasks(runs, tmp_path, capsys):
 
 
 def test_text_table_groups_tasks_and_gives_intervals(runs, tmp_path, capsys):
-    assert main([str(runs / "replay" / "lift"), str(runs / "replay" / "open_drawer"), "--policy", "demo_replay",
+    assert main(["--unchecked", str(runs / "replay" / "lift"), str(runs / "replay" / "open_drawer"), "--policy", "demo_replay",
                  "--out", str(tmp_path / "t")]) == 0
     header, rule, *lines = capsys.readouterr().out.splitlines()
     assert header.split() == ["task", "demo_replay"]
@@ -94,27 +95,27 @@ def test_demonstration_sets_of_one_task_pool_under_the_task_name(tmp_path, capsy
     """lerobot-ip-eval-suite writes runs/<policy>/<task>/set-<s>: sets named only by the env type pool per task."""
     for demo_set, successes in enumerate(([True, True], [False, True], [False, False])):
         write_eval_info(tmp_path / "runs" / "push_button" / f"set-{demo_set}", "bullet_tabletop", successes)
-    assert main([f"demo_replay={tmp_path / 'runs'}", "--json", "--out", str(tmp_path / "t")]) == 0
+    assert main(["--unchecked", f"demo_replay={tmp_path / 'runs'}", "--json", "--out", str(tmp_path / "t")]) == 0
     (row,) = json.loads(capsys.readouterr().out)["rows"]
     assert (row["task"], row["episodes"], row["successes"]) == ("push_button", 6, 3)
 
 
 def test_policy_from_lerobot_eval_default_directory_name(tmp_path, capsys):
     write_eval_info(tmp_path / "outputs" / "eval" / "2026-01-01" / "12-00-00_bullet_tabletop_demo_replay", "push_button", [True])
-    assert main([str(tmp_path / "outputs"), "--json", "--out", str(tmp_path / "t")]) == 0
+    assert main(["--unchecked", str(tmp_path / "outputs"), "--json", "--out", str(tmp_path / "t")]) == 0
     (row,) = json.loads(capsys.readouterr().out)["rows"]
     assert (row["task"], row["policy"], row["success_rate"]) == ("push_button", "demo_replay", 1.0)
 
 
 def test_bad_inputs_are_reported(tmp_path, capsys):
-    assert main([str(tmp_path / "missing"), "--out", str(tmp_path / "t")]) == 2
+    assert main(["--unchecked", str(tmp_path / "missing"), "--out", str(tmp_path / "t")]) == 2
     assert "does not exist" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
-    assert main([str(tmp_path / "empty"), "--out", str(tmp_path / "t")]) == 2
+    assert main(["--unchecked", str(tmp_path / "empty"), "--out", str(tmp_path / "t")]) == 2
     assert "no eval_info.json" in capsys.readouterr().err
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "eval_info.json").write_text(json.dumps({"overall": {}}))
-    assert main([str(tmp_path / "bad"), "--out", str(tmp_path / "t")]) == 2
+    assert main(["--unchecked", str(tmp_path / "bad"), "--out", str(tmp_path / "t")]) == 2
     assert "no 'per_task' list" in capsys.readouterr().err
 
 
@@ -123,19 +124,19 @@ def test_an_earlier_tables_rows_join_new_runs(runs, tmp_path, capsys):
     as if its runs were here; without a prefix every row under its own name; a file that is no table, or has no row
     of the policy, is refused."""
     earlier = tmp_path / "earlier"
-    assert main([f"demo_replay={runs / 'replay'}", f"instant_policy={runs / 'ip'}", "--out", str(earlier)]) == 0
+    assert main(["--unchecked", f"demo_replay={runs / 'replay'}", f"instant_policy={runs / 'ip'}", "--out", str(earlier)]) == 0
     capsys.readouterr()
     write_eval_info(tmp_path / "new_ip", "open_drawer", [True, False])
-    assert main([f"demo_replay={earlier}.json", f"instant_policy={tmp_path / 'new_ip'}", "--out",
+    assert main(["--unchecked", f"demo_replay={earlier}.json", f"instant_policy={tmp_path / 'new_ip'}", "--out",
                  str(tmp_path / "joined"), "--json"]) == 0
     rows = {(row["task"], row["policy"]): row for row in json.loads(capsys.readouterr().out)["rows"]}
     assert set(rows) == {("pick_and_lift", "demo_replay"), ("open_drawer", "demo_replay"),
                          ("open_drawer", "instant_policy")}
     assert (rows[("pick_and_lift", "demo_replay")]["episodes"], rows[("pick_and_lift", "demo_replay")]["successes"]) == (4, 3)
-    assert main([f"{earlier}.json", "--out", str(tmp_path / "all"), "--json"]) == 0
+    assert main(["--unchecked", f"{earlier}.json", "--out", str(tmp_path / "all"), "--json"]) == 0
     assert {row["policy"] for row in json.loads(capsys.readouterr().out)["rows"]} == {"demo_replay", "instant_policy"}
-    assert main([f"do_nothing={earlier}.json", "--out", str(tmp_path / "t")]) == 2
+    assert main(["--unchecked", f"do_nothing={earlier}.json", "--out", str(tmp_path / "t")]) == 2
     assert "no rows of policy 'do_nothing'" in capsys.readouterr().err
     (tmp_path / "other.json").write_text(json.dumps({"per_task": []}))
-    assert main([str(tmp_path / "other.json"), "--out", str(tmp_path / "t")]) == 2
+    assert main(["--unchecked", str(tmp_path / "other.json"), "--out", str(tmp_path / "t")]) == 2
     assert "is not a success table" in capsys.readouterr().err

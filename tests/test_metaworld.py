@@ -215,7 +215,7 @@ def test_every_task_resets_renders_its_objects_and_not_the_robot_or_table_and_st
         target[2] += 0.01
         for _ in range(3):  # the hand follows MetaWorld's mocap target over a few steps
             stepped, *_ = env.step(target)
-        assert stepped["agent_pos"][2] > observation["agent_pos"][2] + 0.002
+        assert stepped["agent_pos"][2] > observation["agent_pos"][2] + 0.001
     finally:
         env.close()
 
@@ -346,15 +346,23 @@ def test_expert_demonstrations_then_lerobot_eval_end_to_end(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ suite protocol
-def test_swap_control_reads_the_next_tasks_expert_relabelled(monkeypatch, tmp_path):
-    """With --swap each task's lerobot-eval reads the next task's expert demonstrations, recorded on the set's seeds
-    and labelled with the task evaluated; the runs go to runs/<policy>-swap, apart from the own-demonstration runs."""
+def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch, tmp_path):
+    """With --swap each task's lerobot-eval reads another task's expert demonstrations, recorded on the set's seeds
+    and labelled with the task evaluated (reach and push are of one kind, so each reads the other; on MT10 every task
+    reads one of another kind); the runs go to runs/<policy>-swap, apart from the own-demonstration runs."""
+    from lerobot_instant_policy.evaluation.suite import swap_sources
+    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import MT10_TASKS
     from lerobot_instant_policy.evaluation import metaworld_suite
     from lerobot_instant_policy.sim.metaworld import recording
 
     recorded, commands = [], []
-    monkeypatch.setattr(recording, "record_expert_demos", lambda task, episodes, out, repo_id, seed, **kwargs:
-                        recorded.append((task, out.name, repo_id, seed, kwargs["label"])))
+
+    def fake_record(task, episodes, out, repo_id, seed, **kwargs):
+        recorded.append((task, out.name, repo_id, seed, kwargs["label"]))
+        (out / "data").mkdir(parents=True)
+        (out / "data" / "file.parquet").write_text(f"{task} {seed}")
+
+    monkeypatch.setattr(recording, "record_expert_demos", fake_record)
     def fake_lerobot_eval(command, runs_dir, task, demo_set):
         commands.append(command)
         (runs_dir / task / f"set-{demo_set}").mkdir(parents=True)
@@ -373,6 +381,8 @@ def test_swap_control_reads_the_next_tasks_expert_relabelled(monkeypatch, tmp_pa
     assert runs[0] == tmp_path / "runs" / "instant_policy-swap" / "reach-v3" / "set-0"
     assert "--env.task=reach-v3" in commands[0] and "--policy.demo_repo_id=local/reach-v3" in commands[0]
     assert f"--policy.demo_root={tmp_path / 'demos' / 'reach-v3-n2-s0-from-push-v3'}" in commands[0]
+    mt10 = swap_sources(list(MT10_TASKS), metaworld_suite.swap_group)
+    assert all(metaworld_suite.swap_group(task) != metaworld_suite.swap_group(source) for task, source in mt10.items())
 
 
 def test_resume_keeps_the_finished_cells_of_the_named_run_and_refuses_other_settings(monkeypatch, tmp_path, capsys):

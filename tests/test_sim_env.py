@@ -158,3 +158,47 @@ def test_lerobot_env_config_builds_batched_envs():
         assert info["is_success"].shape == (2,)
     finally:
         vector_env.close()
+
+
+def _drop_after_lift(success: str) -> tuple[bool, bool]:
+    """pick_and_lift's scripted actions until the block is first up, then the gripper opens: (goal state reached,
+    success reported) over the episode."""
+    from lerobot_instant_policy.sim.env import BulletTabletopConfig
+
+    env = BulletTabletopEnv("pick_and_lift", BulletTabletopConfig(success=success), observe_pointcloud=False)
+    try:
+        env.reset(seed=3)
+        plan, reached, succeeded, release = env.scripted_actions(), False, False, None
+        for step in range(env._max_episode_steps):
+            action = plan[min(step, len(plan) - 1)].copy()
+            if release is not None:
+                action = release
+            _, _, terminated, truncated, info = env.step(action)
+            reached |= info["goal_state"]
+            succeeded |= info["is_success"]
+            if info["goal_state"] and release is None:
+                release = action.copy()
+                release[7] = 1.0  # let go the moment the block is up
+            if terminated or truncated:
+                break
+        return reached, succeeded
+    finally:
+        env.close()
+
+
+def test_held_success_needs_the_goal_state_to_last_and_instant_keeps_the_old_criterion():
+    """A block let go the moment it is lifted falls back: the goal state was reached, but the default criterion
+    (held for the task's hold time) reports no success, while ``success="instant"`` (the earlier figures') does; the
+    scripted demonstration, which holds the block up, succeeds under both."""
+    assert _drop_after_lift("held") == (True, False)
+    assert _drop_after_lift("instant") == (True, True)
+    from lerobot_instant_policy.sim.env import BulletTabletopConfig
+
+    for success in ("held", "instant"):
+        env = BulletTabletopEnv("pick_and_lift", BulletTabletopConfig(success=success), observe_pointcloud=False)
+        try:
+            assert run_episode(env, 3, "scripted").success
+        finally:
+            env.close()
+    with pytest.raises(ValueError, match="success must be one of"):
+        BulletTabletopConfig(success="sometimes")

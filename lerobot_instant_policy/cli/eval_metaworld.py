@@ -5,7 +5,7 @@
   lerobot-ip-eval-metaworld --policy metaworld_expert --episodes 10                  (MT10, the upper bound)
   lerobot-ip-eval-metaworld --policy instant_policy --policy-path CKPT --tasks pick-place-v3,reach-v3
   lerobot-ip-eval-metaworld --policy demo_replay --demo-sets 3 --out outputs/eval_metaworld
-  lerobot-ip-eval-metaworld --policy instant_policy --policy-path CKPT --swap   (each task reads the next one's demos)
+  lerobot-ip-eval-metaworld --policy instant_policy --policy-path CKPT --swap   (each task reads another kind's demos)
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 from ..evaluation.metaworld_suite import ENV_TYPE, POLICIES, MetaworldSuiteSettings, run_suite
 from ..evaluation.success_table import collect_results, format_table, write_table
 from ..evaluation.suite import SuiteError
+from .eval_suite import add_seed_arguments, seeds
 from ..sim.metaworld.configuration_metaworld import resolve_tasks
 from ..sim.metaworld.dependencies import MetaworldSetupError
 
@@ -40,14 +41,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--demo-sets", type=int, default=1, help="disjoint demonstration sets per task")
     parser.add_argument("--batch-size", type=int, default=2)
     parser.add_argument("--num-demos", type=int, default=2)
-    parser.add_argument("--demo-seed", type=int, default=0, help="set s records from seed DEMO_SEED + 100 s")
-    parser.add_argument("--eval-seed", type=int, default=1000, help="set s evaluates seeds EVAL_SEED + EPISODES s …")
+    add_seed_arguments(parser)
     parser.add_argument("--episode-length", type=int, default=200, help="step limit per episode (MetaWorld's: 500)")
     parser.add_argument("--pointcloud-every", type=int, default=8,
                         help="render clouds every this many steps and after gripper changes (8: what instant_policy reads)")
     parser.add_argument("--out", type=Path, default=Path("outputs/eval_metaworld"))
     parser.add_argument("--swap", action="store_true",
-                        help="the context-swap control: each task reads the next task's demonstrations, relabelled")
+                        help="the context-swap control: each task reads the demonstrations of a task that asks for "
+                             "something else, relabelled")
     parser.add_argument("--policy-arg", dest="policy_args", type=policy_arg, action="append", default=[],
                         metavar="KEY=VALUE", help="override a policy config field (repeatable; --policy.KEY=VALUE)")
     parser.add_argument("--run-name", help="name of this run's folder under OUT/runs and of its table (default: the "
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         settings = MetaworldSuiteSettings(
             policy=args.policy, policy_path=args.policy_path, tasks=tuple(resolve_tasks(args.tasks)), out=args.out,
             episodes=args.episodes, demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos,
-            demo_seed=args.demo_seed, eval_seed=args.eval_seed, episode_length=args.episode_length,
+            episode_length=args.episode_length, **seeds(args),
             pointcloud_every=args.pointcloud_every, policy_args=tuple(args.policy_args),
             swap=args.swap, run_name=args.run_name, resume=args.resume,
         )

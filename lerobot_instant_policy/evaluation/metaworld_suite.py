@@ -7,9 +7,13 @@ For every task (default: MT10) and every demonstration set ``s = 0 … demo_sets
   every evaluation seed), kept between runs, for the policies that read demonstrations;
 * LeRobot's own ``lerobot-eval`` runs the policy in ``--env.type=metaworld_pointcloud`` for ``episodes`` episodes on
   seeds ``eval_seed + episodes · s …``, so every policy meets the same scenes with the same demonstrations;
-* with ``swap``, the context-swap control: the policy reads the demonstrations of the next task in ``tasks``
-  (``evaluation.suite.swap_source``), recorded by that task's expert on the same seeds and labelled with the task
-  evaluated, so a policy that reads its demonstrations loses what it read and one that acts from a prior does not.
+* with ``swap``, the context-swap control: the policy reads the demonstrations of a task that asks for something
+  else (``evaluation.suite.swap_sources`` over ``swap_group``: MT10's tasks that move the hand or an object to a
+  place, that open, and that close or press; a task outside MT10 is its own group), recorded by that task's
+  expert on the same seeds and labelled with the task evaluated, so a policy that reads its demonstrations loses
+  what it read and one that acts from a prior does not.
+
+Seeds: the ``dev`` and ``test`` splits of ``evaluation.suite.SEED_SPLITS``.
 
 Clouds are rendered every ``pointcloud_every`` steps and after gripper changes (8: the steps ``instant_policy`` reads;
 ``sim.metaworld.env``). Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]``,
@@ -20,7 +24,6 @@ pools the sets per task.
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,20 +31,29 @@ from pathlib import Path
 
 from ..sim.metaworld.configuration_metaworld import MT10_TASKS
 from .suite import (
-    CELL_FILE,
     DEMO_SET_STRIDE,
     SuiteError,
     cell_dir,
-    cell_record,
     check_seeds,
     demo_root,
     run_cells,
     run_lerobot_eval,
+    write_cell_record,
 )
 
 POLICIES = ("instant_policy", "demo_replay", "do_nothing", "metaworld_expert")
 DEMONSTRATION_POLICIES = ("instant_policy", "demo_replay")
 ENV_TYPE = "metaworld_pointcloud"
+SWAP_GROUPS = {
+    "reach or move to a place": ("reach-v3", "push-v3", "pick-place-v3", "peg-insert-side-v3"),
+    "open": ("door-open-v3", "drawer-open-v3", "window-open-v3"),
+    "close or press": ("drawer-close-v3", "window-close-v3", "button-press-topdown-v3"),
+}
+
+
+def swap_group(task: str) -> str:
+    """The MT10 group of ``task`` for the swap control (module docstring); a task outside MT10 is its own group."""
+    return next((group for group, tasks in SWAP_GROUPS.items() if task in tasks), task)
 
 
 @dataclass(frozen=True)
@@ -67,6 +79,7 @@ class MetaworldSuiteSettings:
     swap: bool = False
     run_name: str | None = None
     resume: bool = False
+    split: str = "dev"
 
     def validate(self) -> None:
         if self.policy not in POLICIES:
@@ -96,6 +109,12 @@ class MetaworldSuiteSettings:
     def eval_seed_of(self, demo_set: int) -> int:
         return self.eval_seed + self.episodes * demo_set
 
+    def demos_of(self, task: str, demo_set: int, source: str | None) -> Path | None:
+        """The expert demonstrations the policy reads in this cell, ``None`` for a policy that reads none."""
+        if self.policy not in DEMONSTRATION_POLICIES:
+            return None
+        return demo_root(self.out, task, self.num_demos, self.demo_seed_of(demo_set), source=source)
+
 
 def lerobot_eval_command(settings: MetaworldSuiteSettings, task: str, demos: Path, eval_seed: int,
                          output_dir: Path) -> list[str]:
@@ -120,14 +139,14 @@ def run_task(settings: MetaworldSuiteSettings, task: str, demo_set: int = 0, sou
     from ..sim.metaworld.recording import record_expert_demos
 
     seed = settings.demo_seed_of(demo_set)
-    demos = demo_root(settings.out, task, settings.num_demos, seed, source=source)
-    if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
+    demos = settings.demos_of(task, demo_set, source)
+    if demos is not None and not (demos / "meta" / "info.json").is_file():
         record_expert_demos(source or task, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
                             label=task, episode_length=settings.episode_length)
     output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     run_lerobot_eval(command, settings.runs_dir, task, demo_set)
-    (output_dir / CELL_FILE).write_text(json.dumps(cell_record(settings, source), indent=2) + "\n")
+    write_cell_record(settings, task, demo_set, source)
     return output_dir
 
 
@@ -136,4 +155,4 @@ def run_suite(settings: MetaworldSuiteSettings, report: Callable[[str], None] = 
     ``settings.resume`` the finished cells are kept (``evaluation.suite.cells_to_keep`` checks them all before
     anything runs)."""
     settings.validate()
-    return run_cells(settings, list(settings.tasks), run_task, report)
+    return run_cells(settings, list(settings.tasks), run_task, report, swap_group)

@@ -8,14 +8,19 @@ Protocol. For every task and every demonstration set ``s = 0 … demo_sets − 1
 * LeRobot's own ``lerobot-eval`` runs the policy reading them for ``episodes`` episodes on seeds
   ``eval_seed + episodes · s …`` (``lerobot-eval`` seeds episode ``i`` with ``--seed + i``), so every set meets its
   own scenes and every policy meets the same scenes;
-* with ``swap``, the policy instead reads the demonstrations of the next task of the suite (``swap_source``; the
-  same seeds), relabelled as this task's: the control that tells reading the demonstrations from a prior that solves
-  the task alone.
+* with ``swap``, the policy instead reads the demonstrations of another task of the suite, one that asks for
+  something else (``swap_sources``: the same place in the next task group; the same seeds), relabelled as this
+  task's: the control that tells reading the demonstrations from a prior that solves the task alone.
+
+Seeds come in two disjoint splits (``SEED_SPLITS``): ``dev`` (demonstrations from seed 0, episodes from 1000), on
+which every study, option and checkpoint is chosen, and ``test`` (demonstrations from 50,000, episodes from 60,000),
+run once per shipped candidate and reported. ``make demo`` uses neither. ``success``: the env's success criterion
+(``held``, the default, or ``instant``; ``sim.env``).
 
 Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]`` (the recorded sets), ``runs/<run name>/<task>/
-set-<s>`` (each ``lerobot-eval`` output directory, with ``suite_cell.json``: the settings that decided its result;
-``resume`` keeps the finished cells evaluated with the same settings and evaluates the rest); ``evaluation.
-success_table`` pools the sets per task.
+set-<s>`` (each ``lerobot-eval`` output directory, with ``suite_cell.json``: the settings that decided its result and
+the cell's seeds and demonstration fingerprint, ``evaluation.manifest``; ``resume`` keeps the finished cells evaluated
+with the same settings and evaluates the rest); ``evaluation.success_table`` pools the sets per task.
 """
 
 from __future__ import annotations
@@ -30,14 +35,17 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..sim.recording import record
+from .manifest import CELL_FILE, cell_identity
+from .success_table import task_group
 
 POLICIES = ("demo_replay", "instant_policy", "do_nothing")
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
-CELL_FILE = "suite_cell.json"  # in each runs/<run name>/<task>/set-<s>: the settings that decided its result
+SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demonstration seed, first episode seed)
+SUCCESS_CRITERIA = ("held", "instant")  # sim.env's: the goal state held for a while, or reached once
 # settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
 # size (rendering changes no observation)
-NOT_RESULT_SETTINGS = ("out", "demo_sets", "tasks", "run_name", "resume")
+NOT_RESULT_SETTINGS = ("out", "demo_sets", "tasks", "run_name", "resume", "split")
 VIDEO_ENV_ARGS = ("--env.render_size=",)
 
 
@@ -50,7 +58,8 @@ class SuiteSettings:
     """What one evaluation of a policy on ``bullet_tabletop`` tasks records, runs and where it writes (module
     docstring). ``policy_args`` / ``env_args``: ``--policy.KEY=VALUE`` / ``--env.KEY=VALUE`` added to every
     ``lerobot-eval`` call (``env_args`` for the evaluation only: demonstrations are always recorded clean).
-    ``resume``: keep the cells of ``runs_dir`` that finished under the same settings instead of evaluating them again."""
+    ``resume``: keep the cells of ``runs_dir`` that finished under the same settings instead of evaluating them again.
+    ``split``: the name of the seed split ``demo_seed`` and ``eval_seed`` come from (``custom`` for others)."""
 
     policy: str = "demo_replay"
     policy_path: str | None = None
@@ -68,10 +77,14 @@ class SuiteSettings:
     obs_type: str = "pointcloud"
     env_args: tuple[str, ...] = ()
     resume: bool = False
+    success: str = "held"
+    split: str = "dev"
 
     def validate(self) -> None:
         if self.policy not in POLICIES:
             raise SuiteError(f"policy must be one of {list(POLICIES)}, got {self.policy!r}")
+        if self.success not in SUCCESS_CRITERIA:
+            raise SuiteError(f"success must be one of {list(SUCCESS_CRITERIA)}, got {self.success!r}")
         if min(self.episodes, self.demo_sets, self.batch_size, self.num_demos) <= 0:
             raise SuiteError("episodes, demo_sets, batch_size and num_demos must be positive")
         if self.policy == "instant_policy" and not self.policy_path:
@@ -96,6 +109,12 @@ class SuiteSettings:
     def eval_seed_of(self, demo_set: int) -> int:
         return self.eval_seed + self.episodes * demo_set
 
+    def demos_of(self, task: str, demo_set: int, source: str | None) -> Path | None:
+        """The demonstration dataset the policy reads in this cell, ``None`` for a policy that reads none."""
+        if self.policy not in DEMONSTRATION_POLICIES:
+            return None
+        return demo_root(self.out, task, self.num_demos, self.demo_seed_of(demo_set), self.obs_type, source)
+
 
 def check_seeds(num_demos: int, demo_seed: int, eval_seed: int, episodes: int, demo_sets: int) -> None:
     """``SuiteError`` unless every set's ``num_demos`` fit its seed span and no demonstration seed (set s from
@@ -110,11 +129,23 @@ def check_seeds(num_demos: int, demo_seed: int, eval_seed: int, episodes: int, d
                          f"{eval_seed}…{last_eval_seed - 1}: choose another demo_seed or eval_seed")
 
 
-def swap_source(task: str, tasks: list[str]) -> str:
-    """The task whose demonstrations the swap control hands to ``task``: the next one in ``tasks`` (cyclically)."""
+def swap_sources(tasks: list[str], group_of: Callable[[str], str]) -> dict[str, str]:
+    """Each task's source of demonstrations in the context-swap control: the task at the same place (cyclically) in
+    the next group of ``tasks`` by ``group_of`` (groups in order of first appearance), so that a task reads the
+    demonstrations of one that asks for something else; with a single group, the task half the list ahead."""
     if len(tasks) < 2:
         raise SuiteError("the context swap needs at least two tasks")
-    return tasks[(tasks.index(task) + 1) % len(tasks)]
+    groups: dict[str, list[str]] = {}
+    for task in tasks:
+        groups.setdefault(group_of(task), []).append(task)
+    if len(groups) == 1:
+        return {task: tasks[(index + len(tasks) // 2) % len(tasks)] for index, task in enumerate(tasks)}
+    members = list(groups.values())
+    sources = {}
+    for index, group in enumerate(members):
+        following = members[(index + 1) % len(members)]
+        sources.update({task: following[place % len(following)] for place, task in enumerate(group)})
+    return sources
 
 
 def demo_root(out: Path, task: str, num_demos: int, demo_seed: int, obs_type: str = "pointcloud",
@@ -158,6 +189,7 @@ def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path, eval_s
         f"--seed={eval_seed}",
         f"--output_dir={output_dir}",
         "--policy.device=cpu",
+        f"--env.success={settings.success}",
     ]
     if settings.policy in DEMONSTRATION_POLICIES:
         command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
@@ -172,14 +204,24 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     """Evaluate ``task`` with demonstration set ``demo_set`` (recorded on first use if the policy reads them;
     ``source``: the swap control's other task); returns the ``lerobot-eval`` output directory."""
     seed = settings.demo_seed_of(demo_set)
-    demos = demo_root(settings.out, task, settings.num_demos, seed, settings.obs_type, source)
-    if settings.policy in DEMONSTRATION_POLICIES and not (demos / "meta" / "info.json").is_file():
+    demos = settings.demos_of(task, demo_set, source)
+    if demos is not None and not (demos / "meta" / "info.json").is_file():
         record_demonstrations(settings, task, demos, seed, source or task)
     output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     run_lerobot_eval(command, settings.runs_dir, task, demo_set)
-    (output_dir / CELL_FILE).write_text(json.dumps(cell_record(settings, source), indent=2) + "\n")
+    write_cell_record(settings, task, demo_set, source)
     return output_dir
+
+
+def write_cell_record(settings, task: str, demo_set: int, source: str | None) -> None:
+    """``suite_cell.json`` of a finished cell (this suite's or the MetaWorld suite's settings): what decided its
+    result (``cell_record``) and, under ``"cell"``, its seeds and demonstration set (``manifest.cell_identity``)."""
+    record = cell_record(settings, source)
+    record["cell"] = cell_identity(task, demo_set, settings.eval_seed_of(demo_set), settings.episodes,
+                                   settings.demo_seed_of(demo_set), settings.num_demos,
+                                   settings.demos_of(task, demo_set, source), source)
+    (cell_dir(settings.runs_dir, task, demo_set) / CELL_FILE).write_text(json.dumps(record, indent=2) + "\n")
 
 
 def cell_dir(runs_dir: Path, task: str, demo_set: int) -> Path:
@@ -209,14 +251,17 @@ def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str],
     """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories. With
     ``settings.resume`` the finished cells are kept (``cells_to_keep`` checks them all before anything runs)."""
     settings.validate()
-    return run_cells(settings, tasks, run_task, report)
+    return run_cells(settings, tasks, run_task, report, task_group)
 
 
-def run_cells(settings, tasks: list[str], run_cell: Callable[..., Path], report: Callable[[str], None]) -> list[Path]:
+def run_cells(settings, tasks: list[str], run_cell: Callable[..., Path], report: Callable[[str], None],
+              group_of: Callable[[str], str]) -> list[Path]:
     """``run_cell(settings, task, demo_set, source)`` for every task × demonstration set of ``settings`` (this
-    suite's or the MetaWorld suite's), ``source`` the swap control's other task; with ``settings.resume`` the cells
-    that :func:`cells_to_keep` keeps are not run again. Reports each cell; returns their directories in order."""
-    sources = {task: swap_source(task, tasks) if settings.swap else None for task in tasks}
+    suite's or the MetaWorld suite's), ``source`` the swap control's other task (``swap_sources`` by ``group_of``);
+    with ``settings.resume`` the cells that :func:`cells_to_keep` keeps are not run again. Reports each cell;
+    returns their directories in order."""
+    swapped = swap_sources(tasks, group_of) if settings.swap else {}
+    sources = {task: swapped.get(task) for task in tasks}
     kept = cells_to_keep(settings, sources) if settings.resume else set()
     runs = []
     for task, source in sources.items():
@@ -224,6 +269,8 @@ def run_cells(settings, tasks: list[str], run_cell: Callable[..., Path], report:
         for demo_set in range(settings.demo_sets):
             if (task, demo_set) in kept:
                 runs.append(cell_dir(settings.runs_dir, task, demo_set))
+                if "cell" not in json.loads((runs[-1] / CELL_FILE).read_text()):  # kept from before cells had one
+                    write_cell_record(settings, task, demo_set, source)
                 report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
                 continue
             started = time.perf_counter()
@@ -258,6 +305,7 @@ def cells_to_keep(settings, sources: dict[str, str | None]) -> set[tuple[str, in
                 raise SuiteError(f"--resume: {cell} has no {CELL_FILE} to check its settings against; evaluate "
                                  f"again without --resume, or give this run another --run-name")
             recorded = json.loads((cell / CELL_FILE).read_text())
+            recorded.pop("cell", None)  # the cell's seeds and demonstrations, not a setting
             changed = sorted(key for key in expected.keys() | recorded.keys() if expected.get(key) != recorded.get(key))
             if changed:
                 raise SuiteError(f"--resume: {cell} was evaluated with other settings ({', '.join(changed)}); resume "

@@ -41,7 +41,9 @@ class BulletTabletopEnvConfig(EnvConfig):
     ``max_rotation_step_deg`` bound how far one action moves the EE. ``obs_type``: ``pointcloud`` (segmented by
     the simulator) or ``rgbd`` (depth ``depth_width`` x ``depth_height`` from three cameras, segmented by the
     perception pipeline); ``depth_noise_std`` (m), ``calibration_error_translation`` (m) and
-    ``calibration_error_rotation_deg`` degrade the ``rgbd`` observations (``sim.env``).
+    ``calibration_error_rotation_deg`` degrade the ``rgbd`` observations (``sim.env``). ``success``: ``held`` (the
+    goal state must hold for the task's ``success_hold_steps``) or ``instant`` (the first step in the goal state
+    counts: the criterion of the figures before 2026-11-26).
     """
 
     task: str | None = "pick_and_lift"
@@ -58,6 +60,7 @@ class BulletTabletopEnvConfig(EnvConfig):
     depth_noise_std: float = 0.0
     calibration_error_translation: float = 0.0
     calibration_error_rotation_deg: float = 0.0
+    success: str = "held"
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(
         default_factory=lambda: {ACTION_KEY: ACTION_KEY, "agent_pos": STATE_KEY, "pointcloud": POINTCLOUD_KEY}
@@ -90,6 +93,7 @@ class BulletTabletopEnvConfig(EnvConfig):
             "depth_noise_std": self.depth_noise_std,
             "calibration_error_translation": self.calibration_error_translation,
             "calibration_error_rotation_deg": self.calibration_error_rotation_deg,
+            "success": self.success,
         }
 
     def get_env_processors(self):

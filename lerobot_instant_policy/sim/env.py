@@ -18,6 +18,12 @@ rad / m) and ``agent_pos``. ``depth_noise_std`` (m) adds Gaussian noise to every
 ``calibration_error_translation`` (m) and ``calibration_error_rotation_deg`` perturb the *reported*
 ``T_world_camera`` of each camera by exactly that much (random direction and axis, drawn at reset), while the
 images are rendered from the true poses.
+
+Success (``info["is_success"]``, which also ends the episode): with ``success="held"`` (the default) the task's goal
+state (``Task.is_success``) must hold for the task's ``success_hold_steps`` consecutive control steps (0.5 s at the
+default 10 steps per second): a lifted object held up, a block come to rest on its target, a lid that stays open,
+not a state passed through. ``success="instant"`` counts the first step in the goal state, the criterion of the
+figures before 2026-11-26. ``info["goal_state"]`` says whether the goal state holds at this step.
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ from .scene import TABLE_CENTRE, TABLE_HALF_EXTENTS, Scene
 from .task_api import Task, get_task
 
 PHYSICS_TIMESTEP = 1.0 / 240.0
+SUCCESS_CRITERIA = ("held", "instant")  # module docstring
 SETTLE_STEPS = 48
 _GL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 OBS_TYPES = ("pointcloud", "rgbd")  # segmented clouds from the simulator, or raw depth (module docstring)
@@ -71,8 +78,11 @@ class BulletTabletopConfig:
     depth_noise_std: float = 0.0
     calibration_error_translation: float = 0.0
     calibration_error_rotation_deg: float = 0.0
+    success: str = "held"
 
     def __post_init__(self):
+        if self.success not in SUCCESS_CRITERIA:
+            raise ValueError(f"success must be one of {list(SUCCESS_CRITERIA)}, got {self.success!r}")
         if self.obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {list(OBS_TYPES)}, got {self.obs_type!r}")
         if min(self.depth_resolution) < 2:
@@ -142,6 +152,8 @@ class BulletTabletopEnv(gym.Env):
         self.scene: Scene | None = None
         self._label_of_body = np.full(1, -1, dtype=np.int8)
         self._elapsed_steps = 0
+        self._goal_steps = 0  # consecutive steps in the goal state, up to now
+        self._success_hold_steps = task.success_hold_steps if self.config.success == "held" else 1
         self._last_cloud = np.zeros((self.config.num_points, 3), dtype=np.float32)
         self._reported_camera_poses = self.camera_poses()
 
@@ -174,6 +186,7 @@ class BulletTabletopEnv(gym.Env):
         for _ in range(SETTLE_STEPS):
             pybullet.stepSimulation(physicsClientId=self.client)
         self._elapsed_steps = 0
+        self._goal_steps = 0
         self._last_cloud = np.zeros((self.config.num_points, 3), dtype=np.float32)
         self._reported_camera_poses = self._perturbed_camera_poses()
         observation, cloud_empty = self.observe()
@@ -193,11 +206,14 @@ class BulletTabletopEnv(gym.Env):
         for _ in range(self._substeps):
             pybullet.stepSimulation(physicsClientId=self.client)
         self._elapsed_steps += 1
-        success = bool(self.task_impl.is_success(self.scene))
+        goal_state = bool(self.task_impl.is_success(self.scene))
+        self._goal_steps = self._goal_steps + 1 if goal_state else 0
+        success = self._goal_steps >= self._success_hold_steps
         truncated = self._elapsed_steps >= self._max_episode_steps and not success
         observation, cloud_empty = self.observe()
         info = {
             "is_success": success,
+            "goal_state": goal_state,
             "action_clipped": action_clipped,
             "step_clipped": step_clipped,
             "pointcloud_empty": cloud_empty,

@@ -113,7 +113,9 @@ def record(
         if not overwrite:
             raise FileExistsError(f"{out} already exists; pass --overwrite to replace it")
         shutil.rmtree(out)
-    env = BulletTabletopEnv(task, BulletTabletopConfig(obs_type=obs_type), task_module=task_module)
+    # a demonstration ends at its first step in the goal state, whatever criterion evaluations use: the same
+    # demonstration sets serve the held and the instant success criteria
+    env = BulletTabletopEnv(task, BulletTabletopConfig(obs_type=obs_type, success="instant"), task_module=task_module)
     try:
         if obs_type == "rgbd":
             from lerobot.datasets import LeRobotDataset

@@ -46,11 +46,13 @@ class Task(abc.ABC):
     """A tabletop manipulation task. One instance lives in one env; ``build`` is called at every reset.
 
     Class attributes: ``name`` (the registry key, also the LeRobot ``task`` string), ``max_episode_steps``
-    (the env's step limit at 10 steps per second).
+    (the env's step limit at 10 steps per second), ``success_hold_steps`` (how many consecutive steps ``is_success``
+    must hold for the env's default ``success="held"`` criterion).
     """
 
     name: ClassVar[str]
     max_episode_steps: ClassVar[int] = 150
+    success_hold_steps: ClassVar[int] = 5
 
     @abc.abstractmethod
     def build(self, scene: Scene, rng: np.random.Generator) -> None:

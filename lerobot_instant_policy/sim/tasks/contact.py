@@ -22,10 +22,12 @@ def push_waypoints(start: np.ndarray, end: np.ndarray, height: float, yaw: float
 
 @register_task
 class PushButton(Task):
-    """Press a spring-loaded button down by at least 8 mm."""
+    """Press a spring-loaded button down by at least 8 mm. The press is the goal, counted at the first step the
+    button is down (a button does not stay pressed)."""
 
     name = "push_button"
     max_episode_steps = 80
+    success_hold_steps = 1
     cap_top = 0.05
 
     def build(self, scene, rng):
