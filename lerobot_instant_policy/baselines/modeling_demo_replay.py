@@ -1,4 +1,4 @@
-"""``DemoReplayPolicy``: the classical baseline of the ``bullet_tabletop`` suite (issue 4, part 5).
+"""``DemoReplayPolicy``: the classical baseline: replay a registered demonstration.
 
 At the first ``select_action`` after ``reset()``, for every batch element: load (once per task) the
 demonstrations of its task and plan the replay of the one that fits the current cloud best

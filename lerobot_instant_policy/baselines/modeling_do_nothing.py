@@ -1,4 +1,4 @@
-"""``DoNothingPolicy``: the lower-bound baseline of the ``bullet_tabletop`` suite (issue 6).
+"""``DoNothingPolicy``: the lower-bound baseline: hold the current pose.
 
 Every step it commands the pose the EE is at and the gripper state it has: ``action = observation.state``
 (``(B, 8)``: EE xyz in metres and quaternion xyzw in the world frame, then ``gripper_open``, 1 open, 0 closed,

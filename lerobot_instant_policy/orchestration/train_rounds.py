@@ -1,4 +1,4 @@
-"""Training on pseudo-demonstrations that keep coming, in rounds (issue 12.6; ``lerobot-ip-train-rounds``, ``make train-gpu``).
+"""Training on pseudo-demonstrations that keep coming, in rounds (``lerobot-ip-train-rounds``, ``make train-gpu``).
 
 The run is a sequence of R rounds. Round 0's pseudo-tasks are generated first (``lerobot-ip-generate`` with
 ``workers`` processes: the only generation the trainer waits for) and become the training dataset. Then, for

@@ -9,9 +9,10 @@ tested), but with the shards' data files rewritten by the rendering pool's proce
 so the merge scales with cores like the rendering. Every task draws from its own random stream
 ``(seed, task index)``, so the dataset does not depend on the number of workers.
 
-``family`` picks the rung of the pseudo-task ladder (``pseudo_tasks.FAMILIES``). With ``tasks_per_object_group``
-G > 1, consecutive groups of G tasks share their two objects (drawn from the stream ``(seed, group, 1)``) and differ
-only in their motions, so a network cannot tell a task from its objects: only the demonstrations tell them apart.
+``family`` picks the pseudo-task family, from ``reach`` to the paper's ``full`` (``pseudo_tasks.FAMILIES``). With
+``tasks_per_object_group`` G > 1, consecutive groups of G tasks share their two objects (drawn from the stream
+``(seed, group, 1)``) and differ only in their motions, so a network cannot tell a task from its objects: only the
+demonstrations tell them apart.
 """
 
 from __future__ import annotations

@@ -5,14 +5,15 @@ poses puts every waypoint at the same place relative to its object.
 
 Task families, a ladder from the simplest in-context problem to the paper's generator (``FAMILIES``):
 
-- ``reach`` (rung 1): move to one pose relative to one of the two objects; no gripper change.
-- ``reach_grip`` (rung 2): reach a pose at an object's surface, close the gripper there, retreat in a direction
+- ``reach`` (the simplest): move to one pose relative to one of the two objects; no gripper change.
+- ``reach_grip``: reach a pose at an object's surface, close the gripper there, retreat in a direction
   of the task's own.
-- ``grasp_place`` (rung 3): grasp one object and place it at a pose relative to the second (pick-and-place).
-- ``full`` (rung 4): 2–6 waypoints, at least one gripper change; ``biased_fraction`` of the tasks follow biased
-  templates (grasp, pick-and-place, push, open/close by a pull or a hinge arc, press), the rest are random.
+- ``grasp_place``: grasp one object and place it at a pose relative to the second (pick-and-place).
+- ``full`` (the paper's generator): 2–6 waypoints, at least one gripper change; ``biased_fraction`` of the tasks
+  follow biased templates (grasp, pick-and-place, push, open/close by a pull or a hinge arc, press), the rest are
+  random.
 
-On every rung the anchor object, the pose on it and the approach direction are drawn per task, so the motion
+In every family the anchor object, the pose on it and the approach direction are drawn per task, so the motion
 cannot be predicted from the scene alone: only the task's demonstrations tell it.
 """
 
@@ -99,7 +100,7 @@ def sample_pseudo_task(
 
 
 def _reach(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
-    """Rung 1: one pose 2–10 cm off a random surface point of a random object, approached from a random direction."""
+    """``reach``: one pose 2–10 cm off a random surface point of a random object, approached from a random direction."""
     anchor = int(rng.integers(2))
     point, normal = _surface_point(objects[anchor], rng, (-0.3, 1.0))
     position = point + normal * rng.uniform(0.02, 0.1)
@@ -109,7 +110,7 @@ def _reach(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float
 
 
 def _reach_grip(objects: list[ObjectModel], rng: np.random.Generator, max_roll: float) -> list[Waypoint]:
-    """Rung 2: reach a pose at a random object's surface, close the gripper, retreat 5–15 cm up and sideways."""
+    """``reach_grip``: reach a pose at a random object's surface, close the gripper, retreat 5–15 cm up and sideways."""
     anchor = int(rng.integers(2))
     grip = _grasp_pose(objects[anchor], rng, top=rng.random() < 0.6, max_roll=max_roll)
     sideways = rng.normal(size=2)
