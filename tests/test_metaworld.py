@@ -113,6 +113,26 @@ def test_missing_gl_library_names_the_package(monkeypatch):
         dependencies.check_gl_library()
 
 
+def test_without_the_gl_library_rendering_tests_skip_with_the_one_line_reason_and_the_rest_run(tmp_path):
+    """Where the OSMesa library is missing (hidden here in a child pytest), a rendering test is skipped and pytest's
+    summary names the package to install, while a test of the suite protocol (lerobot-eval replaced by a stand-in)
+    still runs and passes: the GL check happens where rendering does."""
+    runner = tmp_path / "run.py"
+    runner.write_text(
+        "import ctypes.util, sys\n"
+        "import pytest\n"
+        "found = ctypes.util.find_library\n"
+        "ctypes.util.find_library = lambda name: None if name == 'OSMesa' else found(name)\n"
+        f"sys.exit(pytest.main([{str(Path(__file__))!r}, '-q', '-rs', '-p', 'no:cacheprovider', '-k', "
+        "'cloud_is_rendered_on_the_steps or resume_keeps_the_finished_cells']))\n"
+    )
+    completed = subprocess.run([sys.executable, str(runner)], capture_output=True, text=True, cwd=REPO,
+                               env={**os.environ, "MUJOCO_GL": "osmesa"})
+    assert completed.returncode == 0, completed.stdout[-3000:]
+    assert "1 passed, 1 skipped" in completed.stdout
+    assert "SKIPPED" in completed.stdout and "apt-get install libosmesa6" in completed.stdout
+
+
 def test_base_install_registers_the_env_without_metaworld():
     """make demo's path: importing the plugin registers metaworld_pointcloud and imports neither MetaWorld nor
     MuJoCo."""
@@ -307,6 +327,26 @@ def test_expert_solves_its_task_through_the_contract():
     finally:
         env.close()
     assert info["is_success"]
+
+
+# MetaWorld's experts for these tasks grip with a partial effort (0.6) that the data contract's binary gripper turns
+# into a full close, and then fail: measured on seeds 0-2 of MetaWorld's MT1 tasks, the raw expert solved assembly 3/3
+# and basketball 2/3 within 500 steps, the same expert with its grip made binary 0/3 on both.
+BINARY_GRIP_FAILURES = {"assembly-v3", "basketball-v3", "peg-unplug-side-v3"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", [pytest.param(task, marks=pytest.mark.xfail(
+    task in BINARY_GRIP_FAILURES, reason="the expert needs a partial grip the contract's binary gripper lacks",
+    strict=True)) for task in EVERY_TASK])
+def test_every_tasks_expert_demonstration_records(task, tmp_path):
+    """MetaWorld's scripted expert of each task, acting through the data contract within MetaWorld's 500 steps,
+    records a successful demonstration (two seeds tried)."""
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.recording import record_expert_demos
+
+    summary = record_expert_demos(task, 1, tmp_path / task, f"local/{task}", 0, episode_length=500, max_attempts=2)
+    assert summary["episodes"] == 1
 
 
 # ------------------------------------------------------------------------------------------------ end to end
