@@ -47,10 +47,8 @@ def captured_states(policy, tasks) -> dict[str, list[np.ndarray]]:
         calls["psi"] += 1
 
     network = policy.network
-    handles = [network.context_network.register_forward_hook(keep_phi)]
-    dense = network.config.dense_attention
-    psi = network.action_network
-    handles.append(psi.register_forward_hook(keep_psi) if not dense else _dense_hook(psi, keep_psi))
+    # the network runs φ and ψ in the dense layout, through forward_dense, which nn.Module hooks do not see
+    handles = [_dense_hook(network.context_network, keep_phi), _dense_hook(network.action_network, keep_psi)]
     try:
         for held in tasks:
             policy.set_demonstrations(held.demos[:2], num_waypoints=10)
