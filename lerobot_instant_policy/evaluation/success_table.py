@@ -28,7 +28,7 @@ DEFAULT_ENV_TYPE = "bullet_tabletop"
 CONFIDENCE = 0.95
 OTHER_GROUP = "other"
 
-# The suite's tasks by what a policy must read from its demonstrations (issue 30's grouping); tasks registered from
+# The suite's tasks by what a policy must read from its demonstrations; tasks registered from
 # outside the package fall in OTHER_GROUP.
 TASK_GROUPS: dict[str, tuple[str, ...]] = {
     "one object, one contact or grasp": ("push_button", "knock_over", "pick_and_lift", "lift_lid"),
