@@ -108,12 +108,16 @@ ladder: $(INSTALLED)
 # context gain on 24 held-out pseudo-tasks and the loss curve; float32 (use_amp is float16 on CUDA in LeRobot 0.6.1,
 # untried here). It resumes where it stopped. TRAIN_GPU_ARGS adds or overrides flags: '--start shipped',
 # '--family reach_grip', '--rounds 6', '--dry-run', or for several GPUs
-# '--launcher "accelerate launch --multi_gpu --num_processes=4"'. Uses lerobot-ip-train-rounds from the PATH when it
-# is there (an install without .venv, as on a GPU machine without network), else .venv (installed on first use).
+# '--launcher "accelerate launch --multi_gpu --num_processes=4"'. Runs workbench/train_rounds.py (research tooling,
+# not installed) with the python3 on the PATH when the package is installed there (an install without .venv, as on a
+# GPU machine without network), else with .venv's (installed on first use). The check runs outside the checkout,
+# whose egg-info would pass for an install.
 TRAIN_GPU_ARGS ?=
-TRAIN_ROUNDS_ON_PATH := $(shell command -v lerobot-ip-train-rounds 2>/dev/null)
-train-gpu: $(if $(TRAIN_ROUNDS_ON_PATH),,$(INSTALLED))
-	$(or $(TRAIN_ROUNDS_ON_PATH),$(VENV)/bin/lerobot-ip-train-rounds) --config configs/train_rounds/gpu.json $(TRAIN_GPU_ARGS)
+TRAIN_PYTHON_ON_PATH := $(shell cd / && python3 -c "import importlib.metadata as m; \
+	m.distribution('lerobot_policy_instant_policy')" 2>/dev/null && command -v python3)
+train-gpu: $(if $(TRAIN_PYTHON_ON_PATH),,$(INSTALLED))
+	$(or $(TRAIN_PYTHON_ON_PATH),$(VENV)/bin/python) -m workbench.cli.train_rounds --config configs/train_rounds/gpu.json \
+		$(TRAIN_GPU_ARGS)
 
 # Issue 30's training campaign on the 2-core CPU (configs/train_rounds/cpu_campaign.json): the shipped checkpoint
 # continued on rounds of 120 fresh pseudo-tasks of the full generator with bounded turns, each round generated while
@@ -128,8 +132,8 @@ train-gpu: $(if $(TRAIN_ROUNDS_ON_PATH),,$(INSTALLED))
 CAMPAIGN_CONFIG ?= configs/train_rounds/cpu_campaign.json
 CAMPAIGN_ARGS ?=
 campaign: $(INSTALLED)
-	OMP_NUM_THREADS=2 OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/lerobot-ip-train-rounds --config $(CAMPAIGN_CONFIG) \
-		$(CAMPAIGN_ARGS)
+	OMP_NUM_THREADS=2 OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/python -m workbench.cli.train_rounds --config \
+		$(CAMPAIGN_CONFIG) $(CAMPAIGN_ARGS)
 
 # docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
 # every task, 10 episodes each (issue 14's RGB-D vs segmented table).

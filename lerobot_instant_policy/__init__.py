@@ -9,8 +9,10 @@ preview), ``model`` (geometry encoder, graph, σ / φ / ψ transformers, action 
 trio at this root (``configuration_instant_policy``, ``modeling_instant_policy``, ``processor_instant_policy``) and
 what it is built from in ``policy`` (features, optimizer, frame encodings, context encoder); ``baselines``
 (``demo_replay``, ``do_nothing``), ``pretraining`` (the geometry encoder's occupancy pretraining), ``evaluation``
-(offline action error, loss curves, the suite), ``orchestration`` (``lerobot-train`` in rounds) and ``cli`` (the
-``lerobot-ip-*`` commands: parsers). Nothing low imports anything high.
+(offline action error, loss curves, the suite), ``benchmarks`` (speed on the user's machine) and ``cli`` (the
+``lerobot-ip-*`` commands: parsers). Nothing low imports anything high. The repository's research tooling (training
+in rounds, development benchmarks) is ``workbench/`` beside this package, not installed: it imports the package, which
+never imports it.
 """
 
 __version__ = "0.1.0"

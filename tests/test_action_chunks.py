@@ -88,19 +88,3 @@ def test_bad_tables_and_indices_are_refused():
     np.testing.assert_array_equal(is_pad, [[False, False, True], [False, False, True]])
     with pytest.raises(IndexError, match="outside"):
         table.chunks([15], 3)
-
-
-def test_data_benchmark_times_both_paths_on_the_same_rows(datasets, capsys):
-    import json
-
-    from lerobot_instant_policy.cli.bench import main
-
-    rows, _ = datasets
-    assert main(["data", "--root", str(rows.root), "--repo-id", REPO, "--rows", "6", "--repeats", "2", "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
-    assert result["benchmark"] == "data" and result["frames"] == rows.num_frames
-    assert len(result["runs_delta_timestamps"]) == len(result["runs_action_table"]) == 2
-    assert min(result["runs_delta_timestamps"] + result["runs_action_table"]) > 0
-    # The ratio of the unrounded medians; the printed medians are rounded to 0.01 ms.
-    assert result["speedup"] == pytest.approx(result["ms_per_row_delta_timestamps"] / result["ms_per_row_action_table"],
-                                              rel=0.05)

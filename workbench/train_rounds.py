@@ -1,4 +1,5 @@
-"""Training on pseudo-demonstrations that keep coming, in rounds (``lerobot-ip-train-rounds``, ``make train-gpu``).
+"""Training on pseudo-demonstrations that keep coming, in rounds (``python -m workbench.cli.train_rounds``, ``make
+train-gpu``, ``make campaign``).
 
 The run is a sequence of R rounds. Round 0's pseudo-tasks are generated first (``lerobot-ip-generate`` with
 ``workers`` processes: the only generation the trainer waits for) and become the training dataset. Then, for
@@ -56,10 +57,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ..configuration_instant_policy import SHIPPED_CHECKPOINT
-from ..pseudo_demos.tasks import FAMILIES
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
+from lerobot_instant_policy.pseudo_demos.tasks import FAMILIES
 
-PROG = "lerobot-ip-train-rounds"
+PROG = "python -m workbench.cli.train_rounds"
 STATE_FILE = "state.json"
 STATE_VERSION = 1
 TRAIN_REPO_ID, VAL_REPO_ID = "local/train", "local/val"
@@ -78,7 +79,7 @@ class TrainRoundsError(ValueError):
 
 @dataclasses.dataclass
 class TrainRoundsConfig:
-    """What ``lerobot-ip-train-rounds`` does (``--config`` JSON keys; command-line flags override them).
+    """What ``python -m workbench.cli.train_rounds`` does (``--config`` JSON keys; command-line flags override them).
 
     Data: ``rounds`` rounds of ``tasks_per_round`` pseudo-tasks of ``family``, ``demos_per_task`` demonstrations
     each, in groups of ``tasks_per_object_group`` that share their objects, generated in shards of
@@ -377,8 +378,8 @@ def holds_tasks_of(train: Path, round_root: Path) -> bool:
 def plan_steps(config: TrainRoundsConfig, layout: Layout, dry_run: bool = False) -> list[Step]:
     """The stages of the whole run in order (module docstring). With ``dry_run`` the commands are those of a run
     from scratch; otherwise each is built when its stage starts, from what an earlier invocation left on disk."""
-    from ..pseudo_demos import merge
-    from ..pseudo_demos.generation import DEMOS_FILE, TASKS_FILE
+    from lerobot_instant_policy.pseudo_demos import merge
+    from lerobot_instant_policy.pseudo_demos.generation import DEMOS_FILE, TASKS_FILE
 
     def generate_round(number: int) -> Stage:
         root = layout.round(number)

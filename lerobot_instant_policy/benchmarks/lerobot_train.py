@@ -25,8 +25,8 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..orchestration.train_rounds import MODULES
-
+#: LeRobot's training command as a module (``lerobot-train``'s entry point), run with this Python.
+LEROBOT_TRAIN_MODULE = "lerobot.scripts.lerobot_train"
 #: One of LeRobot's training log lines (``lerobot_train.py``): the step, then the averages of its log window.
 LOG_LINE = re.compile(r"step:(?P<step>[0-9.]+[KMBT]?) .*updt_s:(?P<updt_s>[0-9.]+) data_s:(?P<data_s>[0-9.]+)")
 OMP_WAIT_POLICIES = ("default", "active", "passive")
@@ -71,7 +71,7 @@ def lerobot_train_command(root: str, repo_id: str, output_dir: str, steps: int, 
     """``lerobot-train`` of the default model and recipe (the shipped model's, ``InstantPolicyConfig``'s defaults) in
     bfloat16 autocast as ``make ladder`` trains it, no checkpoints, no W&B."""
     return [
-        sys.executable, "-m", MODULES["lerobot-train"], "--policy.type=instant_policy", "--policy.use_amp=true",
+        sys.executable, "-m", LEROBOT_TRAIN_MODULE, "--policy.type=instant_policy", "--policy.use_amp=true",
         f"--policy.compile_model={str(compile_model).lower()}", "--policy.push_to_hub=false",
         f"--dataset.repo_id={repo_id}", f"--dataset.root={root}",
         f"--steps={steps}", f"--batch_size={batch_size}", f"--num_workers={num_workers}", f"--log_freq={log_every}",

@@ -1,11 +1,10 @@
-"""``lerobot-ip-bench``: measured speed of the project's parts, printed as JSON.
+"""``lerobot-ip-bench``: measured speed on this machine of what a user runs, printed as JSON.
 
 ``lerobot-ip-bench generate``: rendered pseudo-demonstration frames per second, for one worker process and for
 ``--workers`` processes at once (medians over ``--repeats`` runs), and demonstrations per second. With
 ``--merge-tasks K``: also frames per second end to end (``generate_dataset``: render, write shards, merge) of K tasks
 with one worker and with ``--workers``, and, on the same shards, LeRobot's serial ``aggregate_datasets`` against the
 parallel merge (in one process, and with a warm pool of ``--workers``), medians and ratios.
-``lerobot-ip-bench encoder``: geometry-encoder clouds per second at 2048 points, batch 1 and 16, both presets.
 ``lerobot-ip-bench env``: ``bullet_tabletop`` steps per second with point-cloud observations, one render's time.
 ``lerobot-ip-bench metaworld-env``: LeRobot's MetaWorld env (``metaworld_pointcloud``, the ``metaworld`` extra) steps
 per second with clouds every step and every ``--pointcloud-every`` steps, one cloud's time.
@@ -21,8 +20,8 @@ through ``torch.compile`` for the training step) and ``--compare-compile-model``
 ``warmup_s``.
 ``lerobot-ip-bench lerobot-train --root DIR``: ``lerobot-train``'s own samples per second on a dataset, end to end
 (data loader, LeRobot's loop, the update), for each ``--num-workers`` and ``--omp-wait-policy`` in alternation.
-``lerobot-ip-bench data --root DIR``: milliseconds per training row, LeRobot's delta timestamps against the policy's
-action table. The benchmarks themselves are :mod:`lerobot_instant_policy.benchmarks`.
+The benchmarks themselves are :mod:`lerobot_instant_policy.benchmarks`. The repository's development benchmarks
+(the geometry encoder alone, a training row's data) are ``python -m workbench.cli.bench`` in a clone, not installed.
 """
 
 from __future__ import annotations
@@ -50,8 +49,7 @@ TRAIN_STEP_COMPARE_FLAGS = {
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lerobot-ip-bench", description="Benchmarks that print JSON.")
     commands = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_generate, _add_encoder, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_data,
-                _add_lerobot_train):
+    for add in (_add_generate, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_lerobot_train):
         add(commands)
     return parser
 
@@ -85,22 +83,7 @@ def _run_generate(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     return bench_generate(args.tasks, args.workers, args.repeats, args.merge_tasks, args.tasks_per_shard)
 
 
-# ---------------------------------------------------------------------------------------------------- encoder, env
-def _add_encoder(commands) -> None:
-    encoder = commands.add_parser("encoder", help="geometry encoder clouds per second (2048 points, CPU)")
-    encoder.add_argument("--repeats", type=int, default=5)
-    encoder.add_argument("--json", action="store_true", help=_JSON_HELP)
-    encoder.set_defaults(handler=_run_encoder)
-
-
-def _run_encoder(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    if args.repeats <= 0:
-        parser.error("--repeats must be positive")
-    from ..benchmarks.encoder import bench_encoder
-
-    return bench_encoder(repeats=args.repeats)
-
-
+# ---------------------------------------------------------------------------------------------------- env
 def _add_env(commands) -> None:
     env = commands.add_parser("env", help="bullet_tabletop env steps per second with point-cloud observations")
     env.add_argument("--task", default="pick_and_place")
@@ -247,27 +230,6 @@ def _compared_setting(parser: argparse.ArgumentParser, args: argparse.Namespace,
         names = [f"--{flag.replace('_', '-')}" for flag in flags]
         parser.error(f"compare one variant at a time: {', '.join(names[:-1])} or {names[-1]}")
     return given[0] if given else None
-
-
-# ---------------------------------------------------------------------------------------------------- data
-def _add_data(commands) -> None:
-    data = commands.add_parser("data", help="milliseconds per training row: LeRobot's delta timestamps against the "
-                                            "policy's action table")
-    data.add_argument("--root", required=True, help="a LeRobotDataset in the data contract")
-    data.add_argument("--repo-id", required=True)
-    data.add_argument("--rows", type=int, default=200)
-    data.add_argument("--horizon", type=int, default=8)
-    data.add_argument("--repeats", type=int, default=3)
-    data.add_argument("--json", action="store_true", help=_JSON_HELP)
-    data.set_defaults(handler=_run_data)
-
-
-def _run_data(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    if min(args.rows, args.horizon, args.repeats) <= 0:
-        parser.error("--rows, --horizon and --repeats must be positive")
-    from ..benchmarks.data import bench_data
-
-    return bench_data(args.repo_id, args.root, args.rows, args.horizon, args.repeats)
 
 
 # ---------------------------------------------------------------------------------------------------- lerobot-train

@@ -15,13 +15,13 @@ with LeRobot's ``update_data_df`` and keeps every other column as the Arrow data
 Arrow schema, so 2-D features such as the ``(P, 3)`` point cloud keep their type (as
 ``keep_array_types_while_aggregating`` does for the reference) without a round trip through pandas.
 
-``append_datasets`` grows a dataset in place by the episodes of others (``lerobot-ip-train-rounds`` adds each round's
+``append_datasets`` grows a dataset in place by the episodes of others (``workbench/train_rounds.py`` adds each round's
 pseudo-tasks to its training dataset): ``merge_parallel`` of the dataset and the new ones with ``link_first``, so the
-dataset's own data files are hard-linked unchanged (their offsets are zero and their task indices stay; a rewrite
-would give the same bytes) and only the new datasets' files are rewritten. The merge is staged in ``ROOT/.append``
-and swapped into place (``data/``, ``meta/``) once complete; other entries of ``ROOT`` (such as the frame-encoding
-cache) are left alone. The old frames keep their data files byte for byte and their ``index`` values, the new ones
-follow them, which is what lets ``frame_encodings`` extend its cache instead of rebuilding it.
+dataset's own data files are hard-linked unchanged (their offsets are zero and their task indices stay; a rewrite would
+give the same bytes) and only the new datasets' files are rewritten. The merge is staged in ``ROOT/.append`` and swapped
+into place (``data/``, ``meta/``) once complete; other entries of ``ROOT`` (such as the frame-encoding cache) are left
+alone. The old frames keep their data files byte for byte and their ``index`` values, the new ones follow them, which is
+what lets ``frame_encodings`` extend its cache instead of rebuilding it.
 """
 
 from __future__ import annotations

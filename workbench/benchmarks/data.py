@@ -2,8 +2,8 @@
 
 Both paths read the same rows of a dataset through ``LeRobotDataset.__getitem__`` (what ``lerobot-train``'s data
 loader workers run). ``delta_timestamps`` adds LeRobot's query of the ``T`` following actions to each row;
-``action_table`` reads the row alone and looks its chunk up in :class:`~..data.action_chunks.ActionChunks`, as the
-policy does in training.
+``action_table`` reads the row alone and looks its chunk up in
+:class:`~lerobot_instant_policy.data.action_chunks.ActionChunks`, as the policy does in training.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ def bench_data(repo_id: str, root: str, rows: int = 200, horizon: int = 8, repea
     """Median milliseconds per row of both paths over ``rows`` random rows, in alternation ``repeats`` times."""
     from lerobot.datasets import LeRobotDataset
 
-    from ..contract import ACTION_KEY
-    from ..data.action_chunks import ActionChunks
+    from lerobot_instant_policy.contract import ACTION_KEY
+    from lerobot_instant_policy.data.action_chunks import ActionChunks
 
     plain = LeRobotDataset(repo_id, root=root)
     chunked = LeRobotDataset(repo_id, root=root,

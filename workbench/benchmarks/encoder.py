@@ -7,8 +7,8 @@ import time
 
 import torch
 
-from ..model.geometry_encoder import ENCODER_PRESETS, GeometryEncoder
-from ..model.point_ops import farthest_point_sampling, farthest_point_sampling_torch
+from lerobot_instant_policy.model.geometry_encoder import ENCODER_PRESETS, GeometryEncoder
+from lerobot_instant_policy.model.point_ops import farthest_point_sampling, farthest_point_sampling_torch
 
 
 @torch.no_grad()

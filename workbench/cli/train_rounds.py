@@ -1,5 +1,6 @@
-"""``lerobot-ip-train-rounds``: the command line of :mod:`lerobot_instant_policy.orchestration.train_rounds` (train on
-pseudo-demonstrations generated while training runs, in rounds; ``make train-gpu``)."""
+"""``python -m workbench.cli.train_rounds`` (from the repository root): the command line of
+:mod:`workbench.train_rounds` (train on pseudo-demonstrations generated while training runs, in rounds; ``make
+train-gpu``, ``make campaign``)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,10 @@ import json
 import shlex
 import sys
 
-from ..config_io import load_config
-from ..orchestration.train_rounds import PROG, Layout, TrainRoundsConfig, TrainRoundsError, dry_run, run
-from ..pseudo_demos.tasks import FAMILIES
+from lerobot_instant_policy.config_io import load_config
+from lerobot_instant_policy.pseudo_demos.tasks import FAMILIES
+
+from ..train_rounds import PROG, Layout, TrainRoundsConfig, TrainRoundsError, dry_run, run
 
 
 def build_parser() -> argparse.ArgumentParser:

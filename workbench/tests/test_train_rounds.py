@@ -1,7 +1,7 @@
-"""``lerobot-ip-train-rounds`` (issue 12.6, ``make train-gpu``): the commands of every stage, refused settings, the
-state file that makes a run resumable, the runner that skips finished stages and stops its processes, and a tiny run
-on CPU end to end (generation beside training, the training dataset growing, training resumed, the frame-encoding
-cache extended, an interruption resumed, the action error and loss curve at the end)."""
+"""``python -m workbench.cli.train_rounds`` (``make train-gpu``, ``make campaign``): the commands of every stage,
+refused settings, the state file that makes a run resumable, the runner that skips finished stages and stops its
+processes, and a tiny run on CPU end to end (generation beside training, the training dataset growing, training
+resumed, the frame-encoding cache extended, an interruption resumed, the action error and loss curve at the end)."""
 
 from __future__ import annotations
 
@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_instant_policy.cli import train_rounds
-from lerobot_instant_policy.cli.train_rounds import main
 from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
-from lerobot_instant_policy.orchestration import train_rounds as rounds
-from lerobot_instant_policy.orchestration.train_rounds import (
+from workbench import train_rounds as rounds
+from workbench.cli import train_rounds
+from workbench.cli.train_rounds import main
+from workbench.train_rounds import (
     Layout,
     Runner,
     Stage,
@@ -31,6 +31,7 @@ from lerobot_instant_policy.orchestration.train_rounds import (
     write_state,
 )
 
+REPO = Path(__file__).resolve().parents[2]  # the repository root, from which workbench runs
 TINY = ["--family", "reach", "--rounds", "2", "--tasks-per-round", "2", "--demos-per-task", "3",
         "--steps-per-round", "4", "--batch-size", "2", "--workers", "1", "--num-workers", "0", "--device", "cpu",
         "--val-tasks", "2", "--val-demos-per-task", "3"]
@@ -255,8 +256,8 @@ def test_the_json_result_is_found_after_other_output():
 
 
 def _run_command(out: Path, config: Path) -> list[str]:
-    return [sys.executable, "-m", "lerobot_instant_policy.cli.train_rounds", "--config", str(config), "--out", str(out),
-            *TINY]
+    """The command as ``make campaign`` runs it: ``python -m`` from the repository root (``_run_command``'s cwd)."""
+    return [sys.executable, "-m", "workbench.cli.train_rounds", "--config", str(config), "--out", str(out), *TINY]
 
 
 @pytest.mark.slow
@@ -268,8 +269,8 @@ def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and
     out = tmp_path / "run"
     layout = Layout(out)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
-    first = subprocess.Popen(_run_command(out, config), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True)
+    first = subprocess.Popen(_run_command(out, config), env=env, cwd=REPO, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 400
     while time.time() < deadline and first.poll() is None:
         if layout.state.is_file() and "train-000" in json.loads(layout.state.read_text())["stages"]:
@@ -283,7 +284,8 @@ def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and
     assert "train-000" in interrupted and "loss-curve-000008" not in interrupted
     train_0_log = (layout.logs / "train-000.log").read_text()
 
-    second = subprocess.run(_run_command(out, config), env=env, capture_output=True, text=True, timeout=900)
+    second = subprocess.run(_run_command(out, config), env=env, cwd=REPO, capture_output=True, text=True,
+                            timeout=900)
     assert second.returncode == 0, second.stderr[-5000:]
     summary = json.loads(second.stdout)
 
@@ -321,13 +323,12 @@ def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and
     assert json.loads((out / "summary.json").read_text()) == summary
 
 
-@pytest.mark.parametrize("name", sorted(path.name for path in (Path(__file__).resolve().parents[1] / "configs" /
-                                                                "train_rounds").glob("*.json")))
+@pytest.mark.parametrize("name", sorted(path.name for path in (REPO / "configs" / "train_rounds").glob("*.json")))
 def test_the_shipped_round_configs_are_valid_and_the_continued_campaign_starts_from_committed_weights(name, capsys,
                                                                                                        monkeypatch):
     """Every preset under configs/train_rounds validates and plans its stages; the continued campaign's start is the
     committed checkpoint (a fresh clone has no outputs/), on moved objects only."""
-    repo = Path(__file__).resolve().parents[1]
+    repo = REPO
     monkeypatch.chdir(repo)
     assert main(["--config", f"configs/train_rounds/{name}", "--dry-run"]) == 0
     printed = capsys.readouterr().out
