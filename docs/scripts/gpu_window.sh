@@ -15,11 +15,12 @@ nvidia-smi -L
 export OMP_NUM_THREADS=1
 out=outputs/gpu_campaign
 mkdir -p outputs
-setsid nohup lerobot-ip-train-rounds --config .device/project/configs/train_rounds/gpu_campaign.json \
+# workbench/ (not in the wheel) comes with the working tree the device call copies; run it from the repository root
+setsid nohup python3 -m workbench.cli.train_rounds --config .device/project/configs/train_rounds/gpu_campaign.json \
   > outputs/train_rounds.log 2>&1 &
 while [ $SECONDS -lt "$deadline" ] && [ ! -f $out/summary.json ]; do sleep 10; done
 # the run's own choice of checkpoint (train_rounds.Layout): the latest complete one, never one still being written
-checkpoint=$(python3 -c "import sys; from lerobot_instant_policy.orchestration.train_rounds import Layout; print(Layout(sys.argv[1]).latest_checkpoint() or '')" $out)
+checkpoint=$(python3 -c "import sys; from workbench.train_rounds import Layout; print(Layout(sys.argv[1]).latest_checkpoint() or '')" $out)
 echo "latest checkpoint: ${checkpoint:-none} at ${SECONDS}s"
 [ -n "$checkpoint" ] && tar czf "$OUT/checkpoint.tgz" -C "$checkpoint" pretrained_model training_state/training_step.json
 cp outputs/train_rounds.log $out/state.json $out/summary.json $out/action_error.json "$OUT"/ 2>/dev/null
