@@ -4,6 +4,7 @@ difference with its cluster bootstrap interval on small known cases."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -38,7 +39,8 @@ def fake_suite(monkeypatch):
         (demos / "meta" / "info.json").write_text("{}")
 
     monkeypatch.setattr(suite, "run_lerobot_eval", fake_lerobot_eval)
-    monkeypatch.setattr(suite, "record_demonstrations", fake_record)
+    monkeypatch.setitem(suite.SUITE_ENVS, "bullet_tabletop",
+                        dataclasses.replace(suite.SUITE_ENVS["bullet_tabletop"], record=fake_record))
 
     def run(settings: SuiteSettings, cells: dict[tuple[str, int], list[bool]]):
         outcomes[settings.name] = cells

@@ -273,7 +273,8 @@ def test_resume_keeps_the_cells_evaluated_with_the_same_settings_and_refuses_oth
         (demos / "data").mkdir(parents=True)
         (demos / "data" / "episodes.parquet").write_text(f"{source} {seed}")
 
-    monkeypatch.setattr(suite, "record_demonstrations", fake_record)
+    monkeypatch.setitem(suite.SUITE_ENVS, "bullet_tabletop",
+                        dataclasses.replace(suite.SUITE_ENVS["bullet_tabletop"], record=fake_record))
     suite.run_suite(swapped, tasks, report=lambda line: None)
     with pytest.raises(SuiteError, match="swap_source"):
         suite.run_suite(SuiteSettings(policy="demo_replay", out=tmp_path, episodes=2, demo_sets=1, swap=True,

@@ -392,7 +392,7 @@ def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch,
     reads one of another kind); the runs go to runs/<policy>-swap, apart from the own-demonstration runs."""
     from lerobot_instant_policy.evaluation.suite import swap_sources
     from lerobot_instant_policy.sim.metaworld.configuration_metaworld import MT10_TASKS
-    from lerobot_instant_policy.evaluation import metaworld_suite
+    from lerobot_instant_policy.evaluation import metaworld_suite, suite
     from lerobot_instant_policy.sim.metaworld import recording
 
     recorded, commands = [], []
@@ -408,11 +408,10 @@ def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch,
         (runs_dir / task / f"set-{demo_set}").mkdir(parents=True)
         return runs_dir / task / f"set-{demo_set}"
 
-    monkeypatch.setattr(metaworld_suite, "run_lerobot_eval", fake_lerobot_eval)
-    settings = metaworld_suite.MetaworldSuiteSettings(
-        policy="instant_policy", policy_path="ckpt", tasks=("reach-v3", "push-v3"), out=tmp_path, demo_sets=2,
-        swap=True)
-    runs = metaworld_suite.run_suite(settings, report=lambda line: None)
+    monkeypatch.setattr(suite, "run_lerobot_eval", fake_lerobot_eval)
+    settings = suite.SuiteSettings(env_type="metaworld_pointcloud", policy="instant_policy", policy_path="ckpt",
+                                   out=tmp_path, demo_sets=2, swap=True)
+    runs = suite.run_suite(settings, ["reach-v3", "push-v3"], report=lambda line: None)
 
     assert recorded == [("push-v3", "reach-v3-n2-s0-from-push-v3", "local/reach-v3", 0, "reach-v3"),
                         ("push-v3", "reach-v3-n2-s100-from-push-v3", "local/reach-v3", 100, "reach-v3"),
@@ -421,6 +420,7 @@ def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch,
     assert runs[0] == tmp_path / "runs" / "instant_policy-swap" / "reach-v3" / "set-0"
     assert "--env.task=reach-v3" in commands[0] and "--policy.demo_repo_id=local/reach-v3" in commands[0]
     assert f"--policy.demo_root={tmp_path / 'demos' / 'reach-v3-n2-s0-from-push-v3'}" in commands[0]
+    assert "--env.type=metaworld_pointcloud" in commands[0] and "--env.pointcloud_every=8" in commands[0]
     mt10 = swap_sources(list(MT10_TASKS), metaworld_suite.swap_group)
     assert all(metaworld_suite.swap_group(task) != metaworld_suite.swap_group(source) for task, source in mt10.items())
 
@@ -431,7 +431,7 @@ def test_resume_keeps_the_finished_cells_of_the_named_run_and_refuses_other_sett
     episode length is refused before anything runs. ``lerobot-eval`` is replaced by a stand-in writing its
     ``eval_info.json`` (the real call runs in the end-to-end test above)."""
     from lerobot_instant_policy.cli.eval_metaworld import main as eval_metaworld_main
-    from lerobot_instant_policy.evaluation import metaworld_suite
+    from lerobot_instant_policy.evaluation import suite
 
     evaluated = []
 
@@ -444,7 +444,7 @@ def test_resume_keeps_the_finished_cells_of_the_named_run_and_refuses_other_sett
         evaluated.append((task, demo_set))
         return output_dir
 
-    monkeypatch.setattr(metaworld_suite, "run_lerobot_eval", fake_lerobot_eval)
+    monkeypatch.setattr(suite, "run_lerobot_eval", fake_lerobot_eval)
     common = ["--policy", "do_nothing", "--tasks", "reach-v3,push-v3", "--episodes", "2", "--demo-sets", "2",
               "--out", str(tmp_path), "--run-name", "still"]
     assert eval_metaworld_main(common) == 0
@@ -467,12 +467,17 @@ def test_resume_keeps_the_finished_cells_of_the_named_run_and_refuses_other_sett
         eval_metaworld_main([*common, "--run-name", "../elsewhere"])
 
 
-@pytest.mark.parametrize("policy, tasks, message", [
-    ("do_nothing", ("reach-v3", "push-v3"), "needs a policy that reads demonstrations"),
-    ("demo_replay", ("reach-v3",), "at least two tasks"),
+@pytest.mark.parametrize("overrides, tasks, message", [
+    ({"policy": "do_nothing", "swap": True}, ["reach-v3", "push-v3"], "needs a policy that reads demonstrations"),
+    ({"swap": True}, ["reach-v3"], "at least two tasks"),
+    ({"episode_length": 600}, ["reach-v3"], "MetaWorld's limit"),
+    ({"success": "instant"}, ["reach-v3"], "success applies to bullet_tabletop only"),
+    ({"policy": "metaworld_expert", "env_type": "bullet_tabletop"}, ["push_button"], "policy must be one of"),
 ])
-def test_swap_without_demonstrations_to_swap_is_refused(policy, tasks, message):
-    from lerobot_instant_policy.evaluation.metaworld_suite import MetaworldSuiteSettings, SuiteError
+def test_bad_metaworld_suite_settings_are_refused_before_anything_runs(tmp_path, overrides, tasks, message):
+    from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings, run_suite
 
+    settings = SuiteSettings(**{"env_type": "metaworld_pointcloud", "out": tmp_path, **overrides})
     with pytest.raises(SuiteError, match=message):
-        MetaworldSuiteSettings(policy=policy, tasks=tasks, swap=True).validate()
+        run_suite(settings, tasks, report=lambda line: None)
+    assert not (tmp_path / "runs").exists()

@@ -19,10 +19,10 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
-from ..evaluation.success_table import DEFAULT_ENV_TYPE, collect_results, format_table, write_table
-from ..evaluation.suite import POLICIES, SEED_SPLITS, SUCCESS_CRITERIA, SuiteError, SuiteSettings, run_suite
+from ..evaluation.suite import POLICIES, SEED_SPLITS, SUCCESS_CRITERIA, SuiteError, SuiteSettings, run_and_tabulate
 from ..sim.env import OBS_TYPES
 from ..sim.task_api import get_task, task_names
 
@@ -40,25 +40,64 @@ def parse_env_arg(text: str) -> str:
     return parse_policy_arg(text, prefix="env")
 
 
-def build_parser(prog: str = "lerobot-ip-eval-suite") -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
-    parser.add_argument("--policy", choices=POLICIES, default="demo_replay")
+def add_suite_arguments(parser: argparse.ArgumentParser, policies: tuple[str, ...], tasks: str, tasks_help: str,
+                        demo_sets: int, out: str) -> None:
+    """The arguments both suites' commands take (``evaluation.suite.SuiteSettings``), with their defaults."""
+    parser.add_argument("--policy", choices=policies, default="demo_replay")
     parser.add_argument("--policy-path", help="a pretrained_model directory (instant_policy checkpoints)")
-    parser.add_argument("--tasks", default="all", help="comma-separated task names, or 'all'")
-    parser.add_argument("--task-module", help="module that registers user tasks")
+    parser.add_argument("--tasks", default=tasks, help=tasks_help)
     parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes per task and demonstration set")
-    parser.add_argument("--demo-sets", type=int, default=3,
-                        help="disjoint demonstration sets per task, each recorded on its own seeds (default 3)")
+    parser.add_argument("--demo-sets", type=int, default=demo_sets,
+                        help=f"disjoint demonstration sets per task, each recorded on its own seeds (default {demo_sets})")
     parser.add_argument("--batch-size", type=int, default=2)
     parser.add_argument("--num-demos", type=int, default=2)
     add_seed_arguments(parser)
     parser.add_argument("--swap", action="store_true",
-                        help="the context-swap control: each task reads the demonstrations of a task of another group, "
-                             "relabelled")
-    parser.add_argument("--out", type=Path, default=Path("outputs/eval_suite"))
+                        help="the context-swap control: each task reads the demonstrations of a task that asks for "
+                             "something else (another group), relabelled")
+    parser.add_argument("--out", type=Path, default=Path(out))
     parser.add_argument("--policy-arg", dest="policy_args", type=parse_policy_arg, action="append", default=[],
                         metavar="KEY=VALUE",
                         help="override a policy config field, e.g. inference_steps=8 (repeatable; --policy.KEY=VALUE)")
+    parser.add_argument("--run-name", type=run_name, help="name of this run's folder under OUT/runs and of its table "
+                                                          "(default: the policy, with -swap for --swap)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the cells of OUT/runs/<name> already evaluated with the same settings and evaluate "
+                             "the rest (refused if a finished cell's settings differ)")
+
+
+def run_name(text: str) -> str:
+    """A plain folder name (letters, digits, '_', '-', '.')."""
+    if not re.fullmatch(r"[\w.-]+", text):
+        raise argparse.ArgumentTypeError(f"must be a plain folder name (letters, digits, '_', '-', '.'), got {text!r}")
+    return text
+
+
+def suite_settings(args: argparse.Namespace, **env_settings) -> SuiteSettings:
+    """The :class:`SuiteSettings` of parsed :func:`add_suite_arguments`, with the env's own ``env_settings``."""
+    return SuiteSettings(
+        policy=args.policy, policy_path=args.policy_path, out=args.out, episodes=args.episodes,
+        demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos, swap=args.swap,
+        policy_args=tuple(args.policy_args), run_name=args.run_name, resume=args.resume, **seeds(args), **env_settings,
+    )
+
+
+def run(prog: str, plan: Callable[[], tuple[SuiteSettings, list[str]]]) -> int:
+    """Run the suite ``plan()`` gives (settings and tasks) and print its table; 2 with a one-line error when the
+    settings, the tasks or a ``lerobot-eval`` call fail."""
+    try:
+        settings, tasks = plan()
+        print(run_and_tabulate(settings, tasks, report=lambda line: print(line, flush=True)))
+    except (SuiteError, ValueError, RuntimeError, FileExistsError) as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lerobot-ip-eval-suite", description=__doc__.split("\n\n")[0])
+    add_suite_arguments(parser, POLICIES, "all", "comma-separated task names, or 'all'", 3, "outputs/eval_suite")
+    parser.add_argument("--task-module", help="module that registers user tasks")
     parser.add_argument("--obs-type", choices=OBS_TYPES, default="pointcloud",
                         help="segmented clouds from the simulator, or raw depth through the perception pipeline")
     parser.add_argument("--env-arg", dest="env_args", type=parse_env_arg, action="append", default=[],
@@ -66,12 +105,7 @@ def build_parser(prog: str = "lerobot-ip-eval-suite") -> argparse.ArgumentParser
                         help="set an env config field for the evaluation, e.g. depth_noise_std=0.002 (repeatable)")
     parser.add_argument("--success", choices=SUCCESS_CRITERIA, default="held",
                         help="held: the goal state must hold for the task's hold time (default); instant: the first "
-                             "step in the goal state counts (the criterion of figures before 2026-11-26)")
-    parser.add_argument("--run-name", help="name of this run's folder under OUT/runs and of its table (default: the "
-                                           "policy, with -swap for --swap)")
-    parser.add_argument("--resume", action="store_true",
-                        help="keep the cells of OUT/runs/<name> already evaluated with the same settings and evaluate "
-                             "the rest (refused if a finished cell's settings differ)")
+                             "step in the goal state counts (the earlier criterion)")
     return parser
 
 
@@ -111,26 +145,11 @@ def resolve_tasks(text: str, task_module: str | None) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.run_name is not None and not re.fullmatch(r"[\w.-]+", args.run_name):
-        parser.error(f"--run-name must be a plain folder name (letters, digits, '_', '-', '.'), got {args.run_name!r}")
-    settings = SuiteSettings(
-        policy=args.policy, policy_path=args.policy_path, out=args.out, episodes=args.episodes,
-        demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos, swap=args.swap,
-        task_module=args.task_module, policy_args=tuple(args.policy_args), run_name=args.run_name,
-        obs_type=args.obs_type, env_args=tuple(args.env_args), resume=args.resume, success=args.success, **seeds(args),
-    )
-    try:
-        runs = run_suite(settings, resolve_tasks(args.tasks, args.task_module),
-                         report=lambda line: print(line, flush=True))
-    except (SuiteError, ValueError, RuntimeError, FileExistsError) as error:
-        print(f"{parser.prog}: error: {error}", file=sys.stderr)
-        return 2
-    results = collect_results([f"{settings.name}={run}" for run in runs], None, DEFAULT_ENV_TYPE)
-    json_path, png_path = write_table(results, args.out / f"success_table_{settings.name}",
-                                      title=f"bullet_tabletop: {settings.name}, success per task")
-    print(format_table(results))
-    print(f"\nwrote {json_path} and {png_path}")
-    return 0
+    return run(parser.prog, lambda: (
+        suite_settings(args, task_module=args.task_module, obs_type=args.obs_type, env_args=tuple(args.env_args),
+                       success=args.success),
+        resolve_tasks(args.tasks, args.task_module),
+    ))
 
 
 if __name__ == "__main__":

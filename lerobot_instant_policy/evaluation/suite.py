@@ -1,5 +1,6 @@
-"""The ``bullet_tabletop`` suite protocol: demonstration sets, evaluation seeds, the context-swap control, and
-``lerobot-eval`` per task (``lerobot-ip-eval-suite``, ``make results-suite``, ``make demo``).
+"""The suite protocol: demonstration sets, evaluation seeds, the context-swap control, and ``lerobot-eval`` per task,
+in ``bullet_tabletop`` (``lerobot-ip-eval-suite``, ``make results-suite``, ``make demo``) and in LeRobot's MetaWorld
+env (``lerobot-ip-eval-metaworld``, ``make eval-metaworld``; what differs there is in ``metaworld_suite``).
 
 Protocol. For every task and every demonstration set ``s = 0 … demo_sets − 1``:
 
@@ -35,17 +36,19 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..sim.recording import record
+from . import metaworld_suite
 from .manifest import CELL_FILE, cell_identity
-from .success_table import task_group
+from .success_table import collect_results, format_table, task_group, write_table
 
-POLICIES = ("demo_replay", "instant_policy", "do_nothing")
+ENV_TYPE = "bullet_tabletop"
+POLICIES = ("demo_replay", "instant_policy", "do_nothing")  # bullet_tabletop's
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
 SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demonstration seed, first episode seed)
 SUCCESS_CRITERIA = ("held", "instant")  # sim.env's: the goal state held for a while, or reached once
 # settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
 # size (rendering changes no observation)
-NOT_RESULT_SETTINGS = ("out", "demo_sets", "tasks", "run_name", "resume", "split")
+NOT_RESULT_SETTINGS = ("out", "demo_sets", "run_name", "resume", "split", "env_type")
 VIDEO_ENV_ARGS = ("--env.render_size=",)
 
 
@@ -54,12 +57,33 @@ class SuiteError(ValueError):
 
 
 @dataclass(frozen=True)
+class SuiteEnv:
+    """What the protocol does differently in one env: its ``policies``, the settings that apply to it alone
+    (``fields``: recorded per cell; other envs' fields must keep their defaults), how it records a demonstration set
+    (``record(settings, task, demos, seed, source)``), the swap control's task groups (``group_of``), its flags on
+    every ``lerobot-eval`` call (``eval_flags(settings)``) and its own checks (``check(settings)``: a message or
+    ``None``)."""
+
+    policies: tuple[str, ...]
+    fields: tuple[str, ...]
+    record: Callable[..., None]
+    group_of: Callable[[str], str]
+    eval_flags: Callable[..., list[str]]
+    check: Callable[..., str | None]
+
+
+@dataclass(frozen=True)
 class SuiteSettings:
-    """What one evaluation of a policy on ``bullet_tabletop`` tasks records, runs and where it writes (module
-    docstring). ``policy_args`` / ``env_args``: ``--policy.KEY=VALUE`` / ``--env.KEY=VALUE`` added to every
-    ``lerobot-eval`` call (``env_args`` for the evaluation only: demonstrations are always recorded clean).
-    ``resume``: keep the cells of ``runs_dir`` that finished under the same settings instead of evaluating them again.
-    ``split``: the name of the seed split ``demo_seed`` and ``eval_seed`` come from (``custom`` for others)."""
+    """What one evaluation of a policy records, runs and where it writes (module docstring), in ``env_type``
+    (``bullet_tabletop`` or ``metaworld_pointcloud``). ``policy_args``: ``--policy.KEY=VALUE`` added to every
+    ``lerobot-eval`` call. ``resume``: keep the cells of ``runs_dir`` that finished under the same settings instead of
+    evaluating them again. ``split``: the name of the seed split ``demo_seed`` and ``eval_seed`` come from
+    (``custom`` for others).
+
+    ``bullet_tabletop`` only: ``task_module`` (user tasks), ``obs_type`` (``rgbd``: the real-robot path),
+    ``env_args`` (``--env.KEY=VALUE`` for the evaluation only: demonstrations are always recorded clean), ``success``
+    (``held`` or ``instant``). ``metaworld_pointcloud`` only: ``episode_length`` and ``pointcloud_every``
+    (``metaworld_suite``)."""
 
     policy: str = "demo_replay"
     policy_path: str | None = None
@@ -79,12 +103,29 @@ class SuiteSettings:
     resume: bool = False
     success: str = "held"
     split: str = "dev"
+    env_type: str = ENV_TYPE
+    episode_length: int = metaworld_suite.DEFAULT_EPISODE_LENGTH
+    pointcloud_every: int = metaworld_suite.DEFAULT_POINTCLOUD_EVERY
+
+    @property
+    def env(self) -> SuiteEnv:
+        if self.env_type not in SUITE_ENVS:
+            raise SuiteError(f"env_type must be one of {list(SUITE_ENVS)}, got {self.env_type!r}")
+        return SUITE_ENVS[self.env_type]
 
     def validate(self) -> None:
-        if self.policy not in POLICIES:
-            raise SuiteError(f"policy must be one of {list(POLICIES)}, got {self.policy!r}")
-        if self.success not in SUCCESS_CRITERIA:
-            raise SuiteError(f"success must be one of {list(SUCCESS_CRITERIA)}, got {self.success!r}")
+        env = self.env
+        if self.policy not in env.policies:
+            raise SuiteError(f"policy must be one of {list(env.policies)} in {self.env_type}, got {self.policy!r}")
+        defaults = SuiteSettings()
+        for other_type, other in SUITE_ENVS.items():
+            changed = [name for name in other.fields if name not in env.fields
+                       and getattr(self, name) != getattr(defaults, name)]
+            if changed:
+                raise SuiteError(f"{', '.join(changed)} applies to {other_type} only, not {self.env_type}")
+        problem = env.check(self)
+        if problem:
+            raise SuiteError(problem)
         if min(self.episodes, self.demo_sets, self.batch_size, self.num_demos) <= 0:
             raise SuiteError("episodes, demo_sets, batch_size and num_demos must be positive")
         if self.policy == "instant_policy" and not self.policy_path:
@@ -177,11 +218,37 @@ def record_demonstrations(settings: SuiteSettings, task: str, demos: Path, seed:
     ))
 
 
-def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path, eval_seed: int, output_dir: Path) -> list[str]:
+def bullet_eval_flags(settings: SuiteSettings) -> list[str]:
+    """The env flags of every ``lerobot-eval`` call in ``bullet_tabletop``."""
+    flags = [f"--env.success={settings.success}"]
+    if settings.task_module:
+        flags.append(f"--env.task_module={settings.task_module}")
+    flags += list(settings.env_args)
+    return flags + ([f"--env.obs_type={settings.obs_type}"] if settings.obs_type != "pointcloud" else [])
+
+
+def bullet_check(settings: SuiteSettings) -> str | None:
+    """What is wrong with ``settings`` for ``bullet_tabletop`` (``None`` when nothing is)."""
+    if settings.success not in SUCCESS_CRITERIA:
+        return f"success must be one of {list(SUCCESS_CRITERIA)}, got {settings.success!r}"
+    return None
+
+
+SUITE_ENVS = {
+    ENV_TYPE: SuiteEnv(POLICIES, ("task_module", "obs_type", "env_args", "success"), record_demonstrations,
+                       task_group, bullet_eval_flags, bullet_check),
+    metaworld_suite.ENV_TYPE: SuiteEnv(metaworld_suite.POLICIES, ("episode_length", "pointcloud_every"),
+                                       metaworld_suite.record_demonstrations, metaworld_suite.swap_group,
+                                       metaworld_suite.eval_flags, metaworld_suite.check),
+}
+
+
+def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path | None, eval_seed: int,
+                         output_dir: Path) -> list[str]:
     """The ``lerobot-eval`` command line for one task and demonstration set."""
     command = [
         str(Path(sys.executable).with_name("lerobot-eval")),
-        "--env.type=bullet_tabletop",
+        f"--env.type={settings.env_type}",
         f"--env.task={task}",
         f"--policy.path={settings.policy_path}" if settings.policy_path else f"--policy.type={settings.policy}",
         f"--eval.n_episodes={settings.episodes}",
@@ -189,15 +256,12 @@ def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path, eval_s
         f"--seed={eval_seed}",
         f"--output_dir={output_dir}",
         "--policy.device=cpu",
-        f"--env.success={settings.success}",
+        *settings.env.eval_flags(settings),
     ]
     if settings.policy in DEMONSTRATION_POLICIES:
         command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
                     f"--policy.num_demos={settings.num_demos}"]
-    if settings.task_module:
-        command.append(f"--env.task_module={settings.task_module}")
-    obs_type = (f"--env.obs_type={settings.obs_type}",) if settings.obs_type != "pointcloud" else ()
-    return command + list(settings.policy_args) + list(settings.env_args) + list(obs_type)
+    return command + list(settings.policy_args)
 
 
 def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str | None = None) -> Path:
@@ -206,7 +270,7 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     seed = settings.demo_seed_of(demo_set)
     demos = settings.demos_of(task, demo_set, source)
     if demos is not None and not (demos / "meta" / "info.json").is_file():
-        record_demonstrations(settings, task, demos, seed, source or task)
+        settings.env.record(settings, task, demos, seed, source or task)
     output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
     run_lerobot_eval(command, settings.runs_dir, task, demo_set)
@@ -214,8 +278,8 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     return output_dir
 
 
-def write_cell_record(settings, task: str, demo_set: int, source: str | None) -> None:
-    """``suite_cell.json`` of a finished cell (this suite's or the MetaWorld suite's settings): what decided its
+def write_cell_record(settings: SuiteSettings, task: str, demo_set: int, source: str | None) -> None:
+    """``suite_cell.json`` of a finished cell: what decided its
     result (``cell_record``) and, under ``"cell"``, its seeds and demonstration set (``manifest.cell_identity``)."""
     record = cell_record(settings, source)
     record["cell"] = cell_identity(task, demo_set, settings.eval_seed_of(demo_set), settings.episodes,
@@ -248,19 +312,11 @@ def run_lerobot_eval(command: list[str], runs_dir: Path, task: str, demo_set: in
 
 
 def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str], None] = print) -> list[Path]:
-    """Every task × demonstration set (module docstring); returns the ``lerobot-eval`` output directories. With
+    """``run_task`` for every task × demonstration set (module docstring), ``source`` the swap control's other task
+    (``swap_sources`` over the env's groups); returns the ``lerobot-eval`` output directories in order. With
     ``settings.resume`` the finished cells are kept (``cells_to_keep`` checks them all before anything runs)."""
     settings.validate()
-    return run_cells(settings, tasks, run_task, report, task_group)
-
-
-def run_cells(settings, tasks: list[str], run_cell: Callable[..., Path], report: Callable[[str], None],
-              group_of: Callable[[str], str]) -> list[Path]:
-    """``run_cell(settings, task, demo_set, source)`` for every task × demonstration set of ``settings`` (this
-    suite's or the MetaWorld suite's), ``source`` the swap control's other task (``swap_sources`` by ``group_of``);
-    with ``settings.resume`` the cells that :func:`cells_to_keep` keeps are not run again. Reports each cell;
-    returns their directories in order."""
-    swapped = swap_sources(tasks, group_of) if settings.swap else {}
+    swapped = swap_sources(tasks, settings.env.group_of) if settings.swap else {}
     sources = {task: swapped.get(task) for task in tasks}
     kept = cells_to_keep(settings, sources) if settings.resume else set()
     runs = []
@@ -274,16 +330,28 @@ def run_cells(settings, tasks: list[str], run_cell: Callable[..., Path], report:
                 report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
                 continue
             started = time.perf_counter()
-            runs.append(run_cell(settings, task, demo_set, source))
+            runs.append(run_task(settings, task, demo_set, source))
             report(f"{task}, set {demo_set}{with_demos}: evaluated in {time.perf_counter() - started:.0f} s -> "
                    f"{runs[-1]}")
     return runs
 
 
-def cell_record(settings, source: str | None) -> dict:
-    """What decides a cell's result (JSON-ready): the settings (a :class:`SuiteSettings` or the MetaWorld suite's)
-    but ``NOT_RESULT_SETTINGS`` and the video size, and the swap's source task."""
-    record = {key: value for key, value in asdict(settings).items() if key not in NOT_RESULT_SETTINGS}
+def run_and_tabulate(settings: SuiteSettings, tasks: list[str], report: Callable[[str], None] = print) -> str:
+    """:func:`run_suite`, then the run's success table (Wilson intervals), written to ``OUT/success_table_<name>
+    .{json,png}``; returns the table as text with where it was written."""
+    runs = run_suite(settings, tasks, report)
+    results = collect_results([f"{settings.name}={run}" for run in runs], None, settings.env_type)
+    json_path, png_path = write_table(results, settings.out / f"success_table_{settings.name}",
+                                      title=f"{settings.env_type}: {settings.name}, success per task")
+    return f"{format_table(results)}\n\nwrote {json_path} and {png_path}"
+
+
+def cell_record(settings: SuiteSettings, source: str | None) -> dict:
+    """What decides a cell's result (JSON-ready): the settings but ``NOT_RESULT_SETTINGS``, other envs' own fields
+    and the video size, and the swap's source task."""
+    others = {name for env in SUITE_ENVS.values() for name in env.fields} - set(settings.env.fields)
+    record = {key: value for key, value in asdict(settings).items()
+              if key not in NOT_RESULT_SETTINGS and key not in others}
     if "env_args" in record:
         record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
     record["policy_args"] = list(settings.policy_args)
@@ -291,7 +359,7 @@ def cell_record(settings, source: str | None) -> dict:
     return record
 
 
-def cells_to_keep(settings, sources: dict[str, str | None]) -> set[tuple[str, int]]:
+def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> set[tuple[str, int]]:
     """``(task, set)`` of the finished cells (``eval_info.json`` written) of ``settings.runs_dir``; a ``SuiteError``
     naming what differs when one was evaluated with other settings or has no ``CELL_FILE`` (nothing is deleted)."""
     kept = set()

@@ -19,7 +19,7 @@ sizes); otherwise it is rebuilt. It is written in a temporary directory next to 
 place, so an interrupted build leaves no directory that could be mistaken for a cache, and the previous cache stays
 in place until the new one replaces it.
 
-A dataset that grew by appended episodes (``lerobot-ip-train-rounds``, ``pseudo_demos/merge.py``'s ``append_datasets``) keeps
+A dataset that grew by appended episodes (``pseudo_demos/merge.py``'s ``append_datasets``, as training in rounds does) keeps
 its old data files byte for byte and adds new ones after them, and its new frames' ``index`` values follow the old
 ones. The cache of the old dataset is then **extended**, not rebuilt: ``meta.json`` also records the SHA-256 of every
 data file, and when the cache's files are the first data files of the grown dataset with the same sizes and digests,
