@@ -329,10 +329,11 @@ def test_expert_solves_its_task_through_the_contract():
     assert info["is_success"]
 
 
-# MetaWorld's experts for these tasks grip with a partial effort (0.6) that the data contract's binary gripper turns
-# into a full close, and then fail: measured on seeds 0-2 of MetaWorld's MT1 tasks, the raw expert solved assembly 3/3
-# and basketball 2/3 within 500 steps, the same expert with its grip made binary 0/3 on both.
-BINARY_GRIP_FAILURES = {"assembly-v3", "basketball-v3", "peg-unplug-side-v3"}
+# MetaWorld's experts for these tasks grip with a partial effort (0.6 or 0.1) that the data contract's binary gripper
+# turns into a full close, and then fail: on seeds 0-2 of MetaWorld's MT1 tasks, within 500 steps, the raw expert
+# solved assembly 3/3, basketball 2/3, peg-unplug-side 3/3 and pick-out-of-hole 3/3, the same expert with its grip
+# made binary 0/3 on each. The other 46 tasks' experts record through the contract.
+BINARY_GRIP_FAILURES = {"assembly-v3", "basketball-v3", "peg-unplug-side-v3", "pick-out-of-hole-v3"}
 
 
 @pytest.mark.slow
