@@ -41,7 +41,7 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
     assert cfg.push_to_hub is False
     assert set(cfg.normalization_mapping.values()) == {NormalizationMode.IDENTITY}
     assert cfg.observation_delta_indices is None and cfg.reward_delta_indices is None
-    # LeRobot delivers each row's own action; the policy reads the chunk itself (tests/test_action_chunks.py).
+    # LeRobot delivers each row's own action; the policy reads the chunk itself (tests/data/test_action_chunks.py).
     assert cfg.action_delta_indices is None
     assert cfg.encoder_weights_path() == SHIPPED_ENCODER_DIR / "small.safetensors"
 

@@ -22,7 +22,7 @@ current observation live in different worlds, so demo → current edges carry ``
 frame. Every attribute is relative, so moving a whole world rigidly changes none of them.
 
 Two implementations of :class:`StageGraphs` give the same outputs and gradients with the same weights
-(``tests/test_dense_attention.py``): :class:`~.sparse_graphs.SparseGraphs` builds these graphs as torch_geometric
+(``tests/model/test_dense_attention.py``): :class:`~.sparse_graphs.SparseGraphs` builds these graphs as torch_geometric
 ``HeteroData`` and runs PyG's layers on their edge lists (the reference); :class:`~.dense_graphs.DenseGraphs` lays
 every edge type out as batches of complete bipartite graphs and runs the same layers densely (the network's).
 """

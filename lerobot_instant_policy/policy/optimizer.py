@@ -3,7 +3,7 @@
 LeRobot's ``AdamWConfig`` builds ``torch.optim.AdamW`` with its default implementation, which on the CPU is a Python
 loop over the parameter tensors: 10.3 ms of a 123 ms small-preset training step at batch 8 on one core of the 2-core
 CPU, against 3.5 ms fused. The fused kernel computes the same update (AdamW, Loshchilov & Hutter 2019,
-Algorithm 2) in one pass per parameter group; ``tests/test_fast_paths.py`` holds it to the loop's result.
+Algorithm 2) in one pass per parameter group; ``tests/model/test_fast_paths.py`` holds it to the loop's result.
 
 Registered with LeRobot's optimizer registry on import, so a ``train_config.json`` that names it loads again when
 ``lerobot-train --resume`` parses it (LeRobot imports the plugin before parsing).

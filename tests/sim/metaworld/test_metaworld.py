@@ -18,7 +18,7 @@ from lerobot_instant_policy.sim.metaworld import dependencies  # noqa: E402
 from lerobot_instant_policy.sim.metaworld.actions import ee_target, metaworld_action  # noqa: E402
 from lerobot_instant_policy.sim.metaworld.configuration_metaworld import resolve_tasks  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 CHECKPOINT = REPO / "lerobot_instant_policy" / "assets" / "checkpoints" / "instant_policy"
 
 
