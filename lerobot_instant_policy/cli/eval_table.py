@@ -22,7 +22,15 @@ from pathlib import Path
 
 from ..evaluation.manifest import ManifestError, cells_of, check_joinable, column_manifest
 from ..evaluation.paired import paired_difference
-from ..evaluation.success_table import DEFAULT_ENV_TYPE, collect_results, format_table, results_json, write_table
+from ..evaluation.success_table import (
+    DEFAULT_ENV_TYPE,
+    collect_results,
+    format_table,
+    is_table,
+    path_argument,
+    results_json,
+    write_table,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,13 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def column_paths(paths: list[str], default_policy: str | None) -> dict[str, Path]:
-    """``{column: run dir}`` of the ``POLICY=DIR`` arguments (earlier tables' ``.json`` are not run dirs)."""
+    """``{column: run dir}`` of the ``[POLICY=]DIR`` arguments (earlier tables' ``.json`` are not run dirs)."""
     columns = {}
     for argument in paths:
-        label, separator, path_text = argument.partition("=")
-        label, path_text = (label, path_text) if separator else (default_policy or "policy", argument)
-        if not path_text.endswith(".json"):
-            columns[label] = Path(path_text)
+        label, path = path_argument(argument)
+        if not is_table(path):
+            columns[label or default_policy or "policy"] = path
     return columns
 
 

@@ -71,35 +71,33 @@ def cell_identity(task: str, demo_set: int, eval_seed: int, episodes: int, demo_
             "demo_fingerprint": demo_fingerprint(demos) if demos is not None else None, "swap_source": swap_source}
 
 
-def read_cell(cell_dir: Path) -> CellOutcome:
-    """The :class:`CellOutcome` of one suite cell directory; ``ManifestError`` when its record is missing or its
-    episodes do not match its seeds."""
+def read_cell(cell_dir: Path) -> tuple[dict, CellOutcome]:
+    """The settings recorded in one suite cell directory's ``suite_cell.json`` and its :class:`CellOutcome`;
+    ``ManifestError`` when its record is missing or its episodes do not match its seeds."""
     record_path = cell_dir / CELL_FILE
-    if not record_path.is_file() or "cell" not in json.loads(record_path.read_text()):
+    record = json.loads(record_path.read_text()) if record_path.is_file() else {}
+    if "cell" not in record:
         raise ManifestError(f"{cell_dir} has no cell record ({CELL_FILE} with 'cell'): it was not evaluated by "
                             f"lerobot-ip-eval-suite / lerobot-ip-eval-metaworld, or before cells recorded their "
                             f"seeds; resume it with --resume to record them, or join it unchecked (--unchecked)")
-    cell = json.loads(record_path.read_text())["cell"]
+    cell = record.pop("cell")
     per_task = load_eval_info(cell_dir / EVAL_INFO)["per_task"]
     successes = tuple(bool(success) for entry in per_task for success in entry["metrics"]["successes"])
     if len(successes) != len(cell["eval_seeds"]):
         raise ManifestError(f"{cell_dir}: {len(successes)} episodes for {len(cell['eval_seeds'])} evaluation seeds")
-    return CellOutcome(str(cell["task"]), int(cell["demo_set"]), tuple(cell["eval_seeds"]), cell["demo_seed"],
-                       cell["num_demos"], cell["demo_fingerprint"], cell["swap_source"], successes)
+    return record, CellOutcome(str(cell["task"]), int(cell["demo_set"]), tuple(cell["eval_seeds"]), cell["demo_seed"],
+                               cell["num_demos"], cell["demo_fingerprint"], cell["swap_source"], successes)
 
 
 def column_manifest(run_dir: Path) -> dict:
     """The manifest of the suite run in ``run_dir`` (``OUT/runs/<name>``): the settings its cells share (those that
     differ between cells, if any, are listed per cell) and every cell (JSON-ready)."""
-    cell_dirs = [eval_info.parent for eval_info in find_eval_infos(run_dir)]
-    records = [json.loads((cell_dir / CELL_FILE).read_text()) if (cell_dir / CELL_FILE).is_file() else {}
-               for cell_dir in cell_dirs]
-    settings = {key: value for key, value in records[0].items() if key not in ("cell", "swap_source")
+    records, cells = zip(*(read_cell(eval_info.parent) for eval_info in find_eval_infos(run_dir)), strict=True)
+    settings = {key: value for key, value in records[0].items() if key != "swap_source"
                 and all(record.get(key) == value for record in records)}
-    cells = sorted((read_cell(cell_dir) for cell_dir in cell_dirs), key=lambda cell: cell.key)
     return {"run_dir": str(run_dir), "settings": settings,
             "cells": [{**asdict(cell), "eval_seeds": list(cell.eval_seeds), "successes": list(cell.successes)}
-                      for cell in cells]}
+                      for cell in sorted(cells, key=lambda cell: cell.key)]}
 
 
 def cells_of(manifest: dict) -> dict[tuple[str, int], CellOutcome]:
@@ -113,15 +111,14 @@ def check_joinable(manifests: dict[str, dict]) -> None:
     """``ManifestError`` naming the first difference unless every column (name → manifest) holds the same cells with
     the same evaluation seeds and, between columns that read demonstrations of the same source, the same
     demonstration seed and, for the same number of demonstrations, the same dataset (module docstring)."""
-    names = list(manifests)
+    cells = {name: cells_of(manifest) for name, manifest in manifests.items()}
+    names = list(cells)
     for name in names[1:]:
-        first, other = cells_of(manifests[names[0]]), cells_of(manifests[name])
-        if set(first) != set(other):
-            missing = sorted(set(first) ^ set(other))
+        if set(cells[names[0]]) != set(cells[name]):
+            missing = sorted(set(cells[names[0]]) ^ set(cells[name]))
             raise ManifestError(f"columns {names[0]!r} and {name!r} hold different cells (task, set): {missing[:4]}")
-    reference = cells_of(manifests[names[0]])
-    for key in reference:
-        column_cells = {name: cells_of(manifests[name])[key] for name in names}
+    for key in cells[names[0]]:
+        column_cells = {name: cells[name][key] for name in names}
         seeds = {cell.eval_seeds for cell in column_cells.values()}
         if len(seeds) > 1:
             raise ManifestError(f"{key[0]}, set {key[1]}: the columns were evaluated on different seeds "

@@ -147,17 +147,25 @@ def read_table_rows(table: Path, policy: str | None) -> list[SuccessCount]:
     return results
 
 
+def path_argument(argument: str) -> tuple[str, Path]:
+    """``[POLICY=]PATH`` → ``(POLICY or "", PATH)``."""
+    label, separator, path_text = argument.partition("=")
+    return (label, Path(path_text)) if separator else ("", Path(argument))
+
+
+def is_table(path: Path) -> bool:
+    """Whether a PATH argument names an earlier table's ``.json`` (not a run directory or its ``eval_info.json``)."""
+    return path.suffix == ".json" and path.name != EVAL_INFO
+
+
 def collect_results(paths: list[str], default_policy: str | None, env_type: str) -> list[SuccessCount]:
     """Pooled counts per (task, policy) over every ``[POLICY=]PATH``, sorted by task then policy. A PATH is a
     lerobot-eval output directory (or a parent of several, or its ``eval_info.json``), or an earlier table's
     ``.json`` (:func:`read_table_rows`: its rows of POLICY, all of them without a prefix, under their own names)."""
     results = []
     for argument in paths:
-        label, separator, path_text = argument.partition("=")
-        if not separator:
-            label, path_text = "", argument
-        path = Path(path_text)
-        if path.suffix == ".json" and path.name != EVAL_INFO:
+        label, path = path_argument(argument)
+        if is_table(path):
             if not path.is_file():
                 raise FileNotFoundError(f"{path} does not exist")
             results += read_table_rows(path, label or None)

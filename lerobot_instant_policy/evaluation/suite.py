@@ -35,6 +35,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from ..sim.env import SUCCESS_CRITERIA
 from ..sim.recording import record
 from . import metaworld_suite
 from .manifest import CELL_FILE, cell_identity
@@ -45,7 +46,6 @@ POLICIES = ("demo_replay", "instant_policy", "do_nothing")  # bullet_tabletop's
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
 SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demonstration seed, first episode seed)
-SUCCESS_CRITERIA = ("held", "instant")  # sim.env's: the goal state held for a while, or reached once
 # settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
 # size (rendering changes no observation)
 NOT_RESULT_SETTINGS = ("out", "demo_sets", "run_name", "resume", "split", "env_type")
@@ -279,8 +279,8 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
 
 
 def write_cell_record(settings: SuiteSettings, task: str, demo_set: int, source: str | None) -> None:
-    """``suite_cell.json`` of a finished cell: what decided its
-    result (``cell_record``) and, under ``"cell"``, its seeds and demonstration set (``manifest.cell_identity``)."""
+    """``suite_cell.json`` of a finished cell: what decided its result (``cell_record``) and, under ``"cell"``, its
+    seeds and demonstration set (``manifest.cell_identity``)."""
     record = cell_record(settings, source)
     record["cell"] = cell_identity(task, demo_set, settings.eval_seed_of(demo_set), settings.episodes,
                                    settings.demo_seed_of(demo_set), settings.num_demos,

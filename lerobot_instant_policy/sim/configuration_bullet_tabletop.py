@@ -43,7 +43,7 @@ class BulletTabletopEnvConfig(EnvConfig):
     perception pipeline); ``depth_noise_std`` (m), ``calibration_error_translation`` (m) and
     ``calibration_error_rotation_deg`` degrade the ``rgbd`` observations (``sim.env``). ``success``: ``held`` (the
     goal state must hold for the task's ``success_hold_steps``) or ``instant`` (the first step in the goal state
-    counts: the criterion of the figures before 2026-11-26).
+    counts, even if the state is only passed through).
     """
 
     task: str | None = "pick_and_lift"

@@ -22,8 +22,8 @@ images are rendered from the true poses.
 Success (``info["is_success"]``, which also ends the episode): with ``success="held"`` (the default) the task's goal
 state (``Task.is_success``) must hold for the task's ``success_hold_steps`` consecutive control steps (0.5 s at the
 default 10 steps per second): a lifted object held up, a block come to rest on its target, a lid that stays open,
-not a state passed through. ``success="instant"`` counts the first step in the goal state, the criterion of the
-figures before 2026-11-26. ``info["goal_state"]`` says whether the goal state holds at this step.
+not a state passed through. ``success="instant"`` counts the first step in the goal state (a state passed through
+counts too). ``info["goal_state"]`` says whether the goal state holds at this step.
 """
 
 from __future__ import annotations

@@ -75,8 +75,8 @@ def task_groups() -> dict[str, list[str]]:
 def resolve_tasks(task: str) -> list[str]:
     """``task`` → MetaWorld task names: comma-separated task names (the ``metaworld-`` prefix dropped) or groups of
     :func:`task_groups`; unknown names raise ``ValueError`` listing the groups. Imports neither MetaWorld nor MuJoCo."""
-    all_tasks, _ = lerobot_metaworld_tasks()
     groups = task_groups()
+    all_tasks = groups["mt50"]
     names = []
     for item in (part.strip() for part in task.split(",") if part.strip()):
         if item in groups:

@@ -59,7 +59,8 @@ def robot_root_bodies(model: mujoco.MjModel) -> set[int]:
 def task_object_geoms(model: mujoco.MjModel, model_xml: Path) -> np.ndarray:
     """``(ngeom,)`` bool: the geoms of the task's own bodies (module docstring): not the world body's (the floor), not
     the robot's or a mocap body's, not the scene's (``model_xml``: the task's XML, MetaWorld's ``model_name``)."""
-    scene = {model.body(index).id for index in range(model.nbody) if model.body(index).name in scene_body_names(model_xml)}
+    scene_names = scene_body_names(model_xml)
+    scene = {index for index in range(model.nbody) if model.body(index).name in scene_names}
     mocap = set(np.flatnonzero(model.body_mocapid >= 0).tolist())
     not_task = scene | mocap | robot_root_bodies(model) | {0}
     roots = model.body_rootid[model.geom_bodyid]
