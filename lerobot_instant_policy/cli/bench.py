@@ -34,7 +34,7 @@ import sys
 # Each subcommand imports its benchmark when it runs: the generation benchmark's spawned workers import this module
 # again, and should not pay for torch and the policy.
 
-_JSON_HELP = "print JSON only (the default output is JSON too)"
+JSON_HELP = "print JSON only (the default output is JSON too)"
 #: ``--compare-*`` flags (their argparse names) of ``inference`` and ``train-step``, and the setting each compares.
 INFERENCE_COMPARE_FLAGS = {"compare_dense_attention": "dense_attention", "compare_compile_inference": "compile_inference"}
 TRAIN_STEP_COMPARE_FLAGS = {
@@ -54,12 +54,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
+    """Parse ``argv`` with a parser of benchmark subcommands (each sets ``handler``) and print its result as JSON."""
     args = parser.parse_args(argv)
     result = args.handler(parser, args)
     print(json.dumps(result, indent=None if args.json else 2))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser(), argv)
 
 
 # ---------------------------------------------------------------------------------------------------- generate
@@ -71,7 +75,7 @@ def _add_generate(commands) -> None:
     generate.add_argument("--merge-tasks", type=int, default=0,
                           help="also generate this many tasks end to end (render + merge) and time the merges")
     generate.add_argument("--tasks-per-shard", type=int, default=2, help="shard size of the --merge-tasks runs")
-    generate.add_argument("--json", action="store_true", help=_JSON_HELP)
+    generate.add_argument("--json", action="store_true", help=JSON_HELP)
     generate.set_defaults(handler=_run_generate)
 
 
@@ -91,7 +95,7 @@ def _add_env(commands) -> None:
     env.add_argument("--repeats", type=int, default=3)
     env.add_argument("--video-sizes", type=int, nargs="+", default=[256, 64],
                      help="also time one render() video frame at each of these square sizes (--env.render_size)")
-    env.add_argument("--json", action="store_true", help=_JSON_HELP)
+    env.add_argument("--json", action="store_true", help=JSON_HELP)
     env.set_defaults(handler=_run_env)
 
 
@@ -109,7 +113,7 @@ def _add_metaworld_env(commands) -> None:
     env.add_argument("--steps", type=int, default=40)
     env.add_argument("--repeats", type=int, default=3)
     env.add_argument("--pointcloud-every", type=int, default=8)
-    env.add_argument("--json", action="store_true", help=_JSON_HELP)
+    env.add_argument("--json", action="store_true", help=JSON_HELP)
     env.set_defaults(handler=_run_metaworld_env)
 
 
@@ -135,7 +139,7 @@ def _add_inference(commands) -> None:
                            help="time compiled and eager sampling in alternation and report the ratio")
     inference.add_argument("--samples-per-prediction", type=int,
                            help="predict the mean of this many samples (--policy.samples_per_prediction; default 1)")
-    inference.add_argument("--json", action="store_true", help=_JSON_HELP)
+    inference.add_argument("--json", action="store_true", help=JSON_HELP)
     inference.set_defaults(handler=_run_inference)
 
 
@@ -179,7 +183,7 @@ def _add_train_step(commands) -> None:
                                  "compiling is timed as warmup_s, outside samples_per_s")
     train_step.add_argument("--compare-compile-model", action="store_true",
                             help="time compiled and eager layers in alternation and report the ratio")
-    train_step.add_argument("--json", action="store_true", help=_JSON_HELP)
+    train_step.add_argument("--json", action="store_true", help=JSON_HELP)
     train_step.set_defaults(handler=_run_train_step)
 
 
@@ -250,7 +254,7 @@ def _add_lerobot_train(commands) -> None:
     train.add_argument("--compile-model", choices=["true", "false"], default="false",
                        help="--policy.compile_model of every run (compiling falls within --skip)")
     train.add_argument("--rounds", type=int, default=1, help="every variant runs this many times, in alternation")
-    train.add_argument("--json", action="store_true", help=_JSON_HELP)
+    train.add_argument("--json", action="store_true", help=JSON_HELP)
     train.set_defaults(handler=_run_lerobot_train)
 
 

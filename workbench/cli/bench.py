@@ -10,11 +10,11 @@ installed ``lerobot-ip-bench``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
+from lerobot_instant_policy.cli.bench import JSON_HELP, run
+
 PROG = "python -m workbench.cli.bench"
-_JSON_HELP = "print JSON only (the default output is JSON too)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -26,18 +26,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    result = args.handler(parser, args)
-    print(json.dumps(result, indent=None if args.json else 2))
-    return 0
+    return run(build_parser(), argv)
 
 
 # ---------------------------------------------------------------------------------------------------- encoder
 def _add_encoder(commands) -> None:
     encoder = commands.add_parser("encoder", help="geometry encoder clouds per second (2048 points, CPU)")
     encoder.add_argument("--repeats", type=int, default=5)
-    encoder.add_argument("--json", action="store_true", help=_JSON_HELP)
+    encoder.add_argument("--json", action="store_true", help=JSON_HELP)
     encoder.set_defaults(handler=_run_encoder)
 
 
@@ -58,7 +54,7 @@ def _add_data(commands) -> None:
     data.add_argument("--rows", type=int, default=200)
     data.add_argument("--horizon", type=int, default=8)
     data.add_argument("--repeats", type=int, default=3)
-    data.add_argument("--json", action="store_true", help=_JSON_HELP)
+    data.add_argument("--json", action="store_true", help=JSON_HELP)
     data.set_defaults(handler=_run_data)
 
 
