@@ -64,6 +64,9 @@ def add_suite_arguments(parser: argparse.ArgumentParser, policies: tuple[str, ..
     parser.add_argument("--resume", action="store_true",
                         help="keep the cells of OUT/runs/<name> already evaluated with the same settings and evaluate "
                              "the rest (refused if a finished cell's settings differ)")
+    parser.add_argument("--env-arg", dest="env_args", type=parse_env_arg, action="append", default=[],
+                        metavar="KEY=VALUE", help="set an env config field for the evaluation (--env.KEY=VALUE), e.g. "
+                        "render_size=64: the size of the videos' frames, which changes no observation (repeatable)")
 
 
 def run_name(text: str) -> str:
@@ -78,7 +81,8 @@ def suite_settings(args: argparse.Namespace, **env_settings) -> SuiteSettings:
     return SuiteSettings(
         policy=args.policy, policy_path=args.policy_path, out=args.out, episodes=args.episodes,
         demo_sets=args.demo_sets, batch_size=args.batch_size, num_demos=args.num_demos, swap=args.swap,
-        policy_args=tuple(args.policy_args), run_name=args.run_name, resume=args.resume, **seeds(args), **env_settings,
+        policy_args=tuple(args.policy_args), run_name=args.run_name, resume=args.resume, env_args=tuple(args.env_args),
+        **seeds(args), **env_settings,
     )
 
 
@@ -100,9 +104,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--task-module", help="module that registers user tasks")
     parser.add_argument("--obs-type", choices=OBS_TYPES, default="pointcloud",
                         help="segmented clouds from the simulator, or raw depth through the perception pipeline")
-    parser.add_argument("--env-arg", dest="env_args", type=parse_env_arg, action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="set an env config field for the evaluation, e.g. depth_noise_std=0.002 (repeatable)")
     parser.add_argument("--success", choices=SUCCESS_CRITERIA, default="held",
                         help="held: the goal state must hold for the task's hold time (default); instant: the first "
                              "step in the goal state counts (the earlier criterion)")
@@ -146,8 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     return run(parser.prog, lambda: (
-        suite_settings(args, task_module=args.task_module, obs_type=args.obs_type, env_args=tuple(args.env_args),
-                       success=args.success),
+        suite_settings(args, task_module=args.task_module, obs_type=args.obs_type, success=args.success),
         resolve_tasks(args.tasks, args.task_module),
     ))
 

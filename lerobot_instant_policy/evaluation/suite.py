@@ -80,8 +80,9 @@ class SuiteSettings:
     evaluating them again. ``split``: the name of the seed split ``demo_seed`` and ``eval_seed`` come from
     (``custom`` for others).
 
-    ``bullet_tabletop`` only: ``task_module`` (user tasks), ``obs_type`` (``rgbd``: the real-robot path),
-    ``env_args`` (``--env.KEY=VALUE`` for the evaluation only: demonstrations are always recorded clean), ``success``
+    ``env_args``: ``--env.KEY=VALUE`` for the evaluation only (demonstrations are always recorded clean).
+
+    ``bullet_tabletop`` only: ``task_module`` (user tasks), ``obs_type`` (``rgbd``: the real-robot path), ``success``
     (``held`` or ``instant``). ``metaworld_pointcloud`` only: ``episode_length`` and ``pointcloud_every``
     (``metaworld_suite``)."""
 
@@ -223,7 +224,6 @@ def bullet_eval_flags(settings: SuiteSettings) -> list[str]:
     flags = [f"--env.success={settings.success}"]
     if settings.task_module:
         flags.append(f"--env.task_module={settings.task_module}")
-    flags += list(settings.env_args)
     return flags + ([f"--env.obs_type={settings.obs_type}"] if settings.obs_type != "pointcloud" else [])
 
 
@@ -235,7 +235,7 @@ def bullet_check(settings: SuiteSettings) -> str | None:
 
 
 SUITE_ENVS = {
-    ENV_TYPE: SuiteEnv(POLICIES, ("task_module", "obs_type", "env_args", "success"), record_demonstrations,
+    ENV_TYPE: SuiteEnv(POLICIES, ("task_module", "obs_type", "success"), record_demonstrations,
                        task_group, bullet_eval_flags, bullet_check),
     metaworld_suite.ENV_TYPE: SuiteEnv(metaworld_suite.POLICIES, ("episode_length", "pointcloud_every"),
                                        metaworld_suite.record_demonstrations, metaworld_suite.swap_group,
@@ -257,6 +257,7 @@ def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path | None,
         f"--output_dir={output_dir}",
         "--policy.device=cpu",
         *settings.env.eval_flags(settings),
+        *settings.env_args,
     ]
     if settings.policy in DEMONSTRATION_POLICIES:
         command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
@@ -352,8 +353,7 @@ def cell_record(settings: SuiteSettings, source: str | None) -> dict:
     others = {name for env in SUITE_ENVS.values() for name in env.fields} - set(settings.env.fields)
     record = {key: value for key, value in asdict(settings).items()
               if key not in NOT_RESULT_SETTINGS and key not in others}
-    if "env_args" in record:
-        record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
+    record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
     record["policy_args"] = list(settings.policy_args)
     record["swap_source"] = source
     return record

@@ -101,7 +101,8 @@ class MetaworldPointCloudEnvConfig(LeRobotMetaworldConfig):
     is fused from; ``camera_resolution``: their square image size in pixels. ``episode_length``: the step limit
     (MetaWorld's own is 500). ``pointcloud_every``: render the cloud only every this many steps and after gripper
     changes, repeating it in between (``env`` module docstring: 8 renders exactly the steps ``instant_policy`` reads
-    with its ``n_action_steps`` of 8; 1, the default, renders every step).
+    with its ``n_action_steps`` of 8; 1, the default, renders every step). ``render_size``: the square size of the
+    videos' frames (``render()``; LeRobot's 480), which changes no observation.
     """
 
     task: str = "pick-place-v3"
@@ -110,6 +111,7 @@ class MetaworldPointCloudEnvConfig(LeRobotMetaworldConfig):
     cameras: list[str] = field(default_factory=lambda: ["corner2", "corner", "behindGripper"])
     camera_resolution: int = 320
     pointcloud_every: int = 1
+    render_size: int = 480
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: {
         ACTION_KEY: ACTION_KEY, "agent_pos": STATE_KEY, "pointcloud": POINTCLOUD_KEY,
@@ -117,9 +119,10 @@ class MetaworldPointCloudEnvConfig(LeRobotMetaworldConfig):
     })
 
     def __post_init__(self):
-        if self.num_points <= 0 or self.camera_resolution < 2 or not self.cameras or self.pointcloud_every < 1:
-            raise ValueError("num_points and pointcloud_every must be positive, camera_resolution at least 2 and "
-                             "cameras not empty")
+        if (self.num_points <= 0 or self.camera_resolution < 2 or not self.cameras or self.pointcloud_every < 1
+                or self.render_size < 1):
+            raise ValueError("num_points, pointcloud_every and render_size must be positive, camera_resolution at "
+                             "least 2 and cameras not empty")
         if not 0 < self.episode_length <= 500:
             raise ValueError(f"episode_length must lie in 1…500 (MetaWorld's limit), got {self.episode_length}")
         self.features = {
@@ -132,7 +135,8 @@ class MetaworldPointCloudEnvConfig(LeRobotMetaworldConfig):
     @property
     def gym_kwargs(self) -> dict:
         return {"num_points": self.num_points, "episode_length": self.episode_length, "cameras": list(self.cameras),
-                "camera_resolution": self.camera_resolution, "pointcloud_every": self.pointcloud_every}
+                "camera_resolution": self.camera_resolution, "pointcloud_every": self.pointcloud_every,
+                "render_size": self.render_size}
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
         """One vector env of ``n_envs`` per task (each its own task group). Asynchronous envs use LeRobot's lazy

@@ -10,7 +10,8 @@ changes what goes in and out:
   (39,)`` float32: MetaWorld's own state vector (hand, fingers, object poses, goal), privileged, read only by the
   scripted expert (``metaworld_expert``). The 480x480 RGB frame LeRobot's env renders for its ``pixels``
   observation is not rendered; ``render()`` still draws it for the videos, without shadows and multisampling
-  (osmesa draws MetaWorld's 4096² shadow map and 4x multisampling in software: 203 ms a frame here, 32 ms without).
+  (osmesa draws MetaWorld's 4096² shadow map and 4x multisampling in software: 203 ms a frame here, 32 ms without),
+  at ``render_size`` (480, LeRobot's; the suite's commands draw 64: a fifth of an episode's time instead of most).
 * action ``(8,)``: the absolute EE target of the data contract, mapped to MetaWorld's 4-D action (:mod:`.actions`;
   ``info["metaworld_action"]`` is the 4-D action sent).
 * ``task_description`` is the task name (``pick-place-v3``): policies find their demonstrations by it.
@@ -59,17 +60,21 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         episode_length: step limit, at most MetaWorld's 500.
         cameras: the cameras and resolution of the cloud.
         pointcloud_every: render the cloud every this many steps, and after gripper changes (module docstring).
+        render_size: the square size of ``render()``'s frames (the videos'; no observation reads them).
     """
 
     def __init__(self, task: str, num_points: int = NUM_POINTS, episode_length: int = 200,
-                 cameras: CameraSettings | None = None, pointcloud_every: int = 1):
+                 cameras: CameraSettings | None = None, pointcloud_every: int = 1, render_size: int = 480):
         super().__init__(task=task, camera_name=VIDEO_CAMERA, obs_type="pixels", render_mode="rgb_array")
+        if render_size < 1:
+            raise ValueError(f"render_size must be positive, got {render_size}")
         if not 0 < episode_length <= 500:
             raise ValueError(f"episode_length must lie in 1…500 (MetaWorld's limit), got {episode_length}")
         if pointcloud_every < 1:
             raise ValueError(f"pointcloud_every must be at least 1, got {pointcloud_every}")
         self.num_points = num_points
         self.pointcloud_every = pointcloud_every
+        self.render_size = render_size
         self._cloud: np.ndarray | None = None  # the last rendered cloud (None: render at the next observation)
         self._cloud_due = False
         self._steps_since_cloud = 0
@@ -99,6 +104,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         super()._ensure_env()
         self._env.model.light_castshadow[:] = 0  # videos without shadows and multisampling (module docstring);
         self._env.model.vis.quality.offsamples = 0  # read when a renderer's context is made: before any rendering
+        self._env.mujoco_renderer.width = self._env.mujoco_renderer.height = self.render_size  # likewise
         target_sites = tuple(name for name, _ in self._env._target_site_config)
         task_geoms = task_object_geoms(self._env.model, Path(self._env.model_name))
         self.cameras = SegmentedDepthCameras(self._env.model, self.camera_settings, task_geoms, target_sites)

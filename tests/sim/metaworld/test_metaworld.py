@@ -309,6 +309,34 @@ def test_cloud_is_rendered_on_the_steps_instant_policy_reads():
     np.testing.assert_array_equal(clouds[1], clouds[0])  # repeated between renderings
 
 
+def test_render_size_sets_the_video_frames_and_changes_no_observation():
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
+
+    observations, frames = {}, {}
+    for size in (64, 480):
+        env = MetaworldPointCloudEnv("drawer-open-v3", pointcloud_every=4, render_size=size)
+        try:
+            observation, _ = env.reset(seed=3)
+            steps = [observation]
+            for _ in range(6):
+                action = observation["agent_pos"].copy()
+                action[2] += 0.02
+                observation, *_ = env.step(action)
+                steps.append(observation)
+            frames[size] = env.render()
+        finally:
+            env.close()
+        observations[size] = steps
+    assert frames[64].shape == (64, 64, 3) and frames[480].shape == (480, 480, 3)
+    assert frames[64].std() > 0  # a drawn scene, not a blank frame
+    for small, large in zip(observations[64], observations[480]):
+        for key in ("pointcloud", "agent_pos", "environment_state"):
+            np.testing.assert_array_equal(small[key], large[key])
+    with pytest.raises(ValueError, match="render_size must be positive"):
+        MetaworldPointCloudEnv("drawer-open-v3", render_size=0)
+
+
 def test_expert_solves_its_task_through_the_contract():
     """MetaWorld's scripted expert, acting only through EE targets and the env's action mapping, succeeds."""
     _metaworld_or_skip()
@@ -411,7 +439,7 @@ def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch,
 
     monkeypatch.setattr(suite, "run_lerobot_eval", fake_lerobot_eval)
     settings = suite.SuiteSettings(env_type="metaworld_pointcloud", policy="instant_policy", policy_path="ckpt",
-                                   out=tmp_path, demo_sets=2, swap=True)
+                                   out=tmp_path, demo_sets=2, swap=True, env_args=("--env.render_size=64",))
     runs = suite.run_suite(settings, ["reach-v3", "push-v3"], report=lambda line: None)
 
     assert recorded == [("push-v3", "reach-v3-n2-s0-from-push-v3", "local/reach-v3", 0, "reach-v3"),
@@ -422,6 +450,8 @@ def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch,
     assert "--env.task=reach-v3" in commands[0] and "--policy.demo_repo_id=local/reach-v3" in commands[0]
     assert f"--policy.demo_root={tmp_path / 'demos' / 'reach-v3-n2-s0-from-push-v3'}" in commands[0]
     assert "--env.type=metaworld_pointcloud" in commands[0] and "--env.pointcloud_every=8" in commands[0]
+    assert "--env.render_size=64" in commands[0]
+    assert json.loads((runs[0] / suite.CELL_FILE).read_text())["env_args"] == []  # the videos' size decides nothing
     mt10 = swap_sources(list(MT10_TASKS), metaworld_suite.swap_group)
     assert all(metaworld_suite.swap_group(task) != metaworld_suite.swap_group(source) for task, source in mt10.items())
 
