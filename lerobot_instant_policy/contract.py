@@ -24,6 +24,16 @@ POINTCLOUD_KEY = "observation.pointcloud"
 STATE_KEY = "observation.state"
 ACTION_KEY = "action"
 
+# A training batch that carries its own context (the pseudo-task stream) instead of drawing it from a dataset: per row
+# N demonstrations reduced to L waypoints, ``(B, N, L, P, 3)`` world-frame clouds, ``(B, N, L, 4, 4)`` EE poses,
+# ``(B, N, L)`` commanded gripper states, and ``(B,)`` int64 ids (rows with one id share one context). Under
+# ``observation.`` so that LeRobot's processors pass them on.
+CONTEXT_POINTCLOUD_KEY = "observation.context.pointcloud"
+CONTEXT_T_WORLD_EE_KEY = "observation.context.T_world_ee"
+CONTEXT_GRIPPER_OPEN_KEY = "observation.context.gripper_open"
+CONTEXT_ID_KEY = "observation.context.id"
+CONTEXT_KEYS = (CONTEXT_POINTCLOUD_KEY, CONTEXT_T_WORLD_EE_KEY, CONTEXT_GRIPPER_OPEN_KEY, CONTEXT_ID_KEY)
+
 NUM_POINTS = 2048
 POINTCLOUD_NAMES = ["point", "xyz"]
 POSE_GRIPPER_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]

@@ -29,11 +29,23 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
 from .configuration_instant_policy import InstantPolicyConfig
-from .contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch, vectors_from_poses_torch
+from .contract import (
+    ACTION_KEY,
+    CONTEXT_GRIPPER_OPEN_KEY,
+    CONTEXT_ID_KEY,
+    CONTEXT_KEYS,
+    CONTEXT_POINTCLOUD_KEY,
+    CONTEXT_T_WORLD_EE_KEY,
+    POINTCLOUD_KEY,
+    STATE_KEY,
+    poses_from_vectors_torch,
+    vectors_from_poses_torch,
+)
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
@@ -76,8 +88,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
     def __init__(self, config: InstantPolicyConfig, dataset_stats=None, dataset_meta=None,
                  load_encoder_weights: bool = True, **kwargs):
-        """Build the policy; with ``dataset_meta`` (a training dataset's ``LeRobotDatasetMetadata``) read that
-        dataset's context bank and action table. ``load_encoder_weights``: load the frozen encoder's pretrained
+        """Build the policy; with ``dataset_meta`` of a training dataset (a ``LeRobotDatasetMetadata``) read that
+        dataset's context bank and action table (other metadata, the pseudo-task stream's, describes no files: its
+        batches carry their context and action chunks). ``load_encoder_weights``: load the frozen encoder's pretrained
         weights (:meth:`load_encoder_weights`) when ``config.pretrained_encoder``; ``from_pretrained`` passes False,
         since a checkpoint carries its encoder."""
         super().__init__(config)
@@ -92,7 +105,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._task_contexts: dict[str, TaskContext] = {}
         if config.pretrained_encoder and load_encoder_weights:
             self.load_encoder_weights(config.encoder_weights_path())
-        if dataset_meta is not None:
+        if isinstance(dataset_meta, LeRobotDatasetMetadata):
             self._training_bank = self._read_training_bank(dataset_meta)
             self._action_chunks = ActionChunks.from_dataset(dataset_meta.repo_id, dataset_meta.root)
         self._queue: deque[Tensor] = deque()
@@ -130,41 +143,87 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._episode_step = 0
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
-        """Training loss of a batch from the training dataset.
+        """Training loss of a batch from the training dataset or the pseudo-task stream.
 
         Args:
-            batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame,
-                ``episode_index (B,)``, and either ``action (B, T, 8)`` absolute EE targets (``action_is_pad (B, T)``
-                optional: padded actions past the episode's end are replaced by its last action, i.e. the EE holds
-                still) or, as ``lerobot-train`` delivers it, the row's own ``action (B, 8)`` and ``index (B,)``: the
-                chunk is then read from the training dataset's action table (:meth:`training_action_chunks`).
+            batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame, and
+                either ``action (B, T, 8)`` absolute EE targets (``action_is_pad (B, T)`` optional: padded actions
+                past the episode's end are replaced by its last action, i.e. the EE holds still) or, as
+                ``lerobot-train`` delivers it from a dataset, the row's own ``action (B, 8)`` and ``index (B,)``: the
+                chunk is then read from the training dataset's action table (:meth:`training_action_chunks`). The
+                context: the batch's own (``contract.CONTEXT_KEYS``, the stream's: :meth:`batch_context`), or else
+                ``episode_index (B,)``, whose task's other episodes in the training dataset are drawn.
 
         Returns:
             The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats.
         """
         points_world, state, T_world_ee, T_ee_actions, action_gripper = self.training_targets(batch)
         batch_size = len(state)
-        if "episode_index" not in batch:
-            raise KeyError("instant_policy training needs 'episode_index' in the batch to draw context demonstrations")
         gripper = (state[:, 7] > 0.5).to(state.dtype)
         flip = torch.rand(batch_size, device=state.device) < self.config.gripper_flip_probability
         gripper = torch.where(flip, 1.0 - gripper, gripper)
 
-        encoder = self.training_context_encoder()
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,)).item()))
-        episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
-        # N is capped at the fewest other episodes of a row's task: a demonstration never repeats in one context.
-        available = int(encoder.bank.other_episode_counts(episodes).min())
-        num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
-        context_episodes = np.stack([encoder.bank.sample_context(int(episode), num_demos, rng) for episode in episodes])
         device = state.device
-        scene_geometry = encoder.frames(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
-        context = self.network.encode_context(
-            encoder.demos(context_episodes, device), points_world, T_world_ee, gripper, scene_geometry=scene_geometry
-        )
+        scene_geometry = None
+        if any(key in batch for key in CONTEXT_KEYS):
+            available = batch[CONTEXT_T_WORLD_EE_KEY].shape[1] if CONTEXT_T_WORLD_EE_KEY in batch else 0
+            num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
+            demos = self.batch_context(batch, num_demos)
+        else:
+            if "episode_index" not in batch:
+                raise KeyError("instant_policy training needs 'episode_index' in the batch to draw context "
+                               "demonstrations, or the context itself (contract.CONTEXT_KEYS)")
+            encoder = self.training_context_encoder()
+            episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
+            # N is capped at the fewest other episodes of a row's task: a demonstration never repeats in one context.
+            available = int(encoder.bank.other_episode_counts(episodes).min())
+            num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
+            context_episodes = np.stack([encoder.bank.sample_context(int(episode), num_demos, rng)
+                                         for episode in episodes])
+            demos = encoder.demos(context_episodes, device)
+            scene_geometry = encoder.frames(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
+        context = self.network.encode_context(demos, points_world, T_world_ee, gripper, scene_geometry=scene_geometry)
         losses = self.network.training_loss(context, T_ee_actions, action_gripper)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
         return losses["loss"], {**parts, "num_demos": float(num_demos)}
+
+    def batch_context(self, batch: dict[str, Tensor], num_demos: int) -> DemoTensors:
+        """The first ``num_demos`` demonstrations of the context a batch carries (``contract.CONTEXT_KEYS``:
+        ``(B, N, L, P, 3)`` world-frame clouds, ``(B, N, L, 4, 4)`` EE poses, ``(B, N, L)`` gripper states, ``(B,)``
+        ids), checked: ``ValueError`` naming the problem. The frozen encoder runs once per distinct id, each
+        waypoint's cloud in its own EE frame, as :class:`ContextEncoder` does for a dataset's waypoints."""
+        missing = [key for key in CONTEXT_KEYS if key not in batch]
+        if missing:
+            raise KeyError(f"a batch that carries its context needs all of {list(CONTEXT_KEYS)}; missing {missing}")
+        points, T_world_ee = batch[CONTEXT_POINTCLOUD_KEY], batch[CONTEXT_T_WORLD_EE_KEY]
+        gripper_open, ids = batch[CONTEXT_GRIPPER_OPEN_KEY], batch[CONTEXT_ID_KEY]
+        batch_size = len(batch[STATE_KEY])
+        if T_world_ee.ndim != 5 or tuple(T_world_ee.shape[-2:]) != (4, 4) or len(T_world_ee) != batch_size:
+            raise ValueError(f"{CONTEXT_T_WORLD_EE_KEY!r} must have shape (B, N, L, 4, 4) with B = {batch_size}, "
+                             f"got {tuple(T_world_ee.shape)}")
+        leading = tuple(T_world_ee.shape[:3])
+        check_range("the number of demonstrations N", num_demos, (1, leading[1]))
+        check_range("num_waypoints (L)", leading[2], SUPPORTED_WAYPOINTS)
+        expected = {CONTEXT_POINTCLOUD_KEY: (*leading, self.config.num_points, 3), CONTEXT_GRIPPER_OPEN_KEY: leading,
+                    CONTEXT_ID_KEY: (batch_size,)}
+        for key, shape in expected.items():
+            if tuple(batch[key].shape) != shape:
+                raise ValueError(f"{key!r} must have shape {shape}, got {tuple(batch[key].shape)}")
+        for key in (CONTEXT_POINTCLOUD_KEY, CONTEXT_T_WORLD_EE_KEY, CONTEXT_GRIPPER_OPEN_KEY):
+            if not torch.isfinite(batch[key]).all():
+                raise ValueError(f"{key!r} contains NaN or infinite values")
+        device = batch[STATE_KEY].device
+        points = points[:, :num_demos].to(device=device, dtype=torch.float32)
+        T_world_ee = T_world_ee[:, :num_demos].to(device=device, dtype=torch.float32)
+        _, row_of_id, first = _first_rows(ids.to(device))
+        positions, features = self.network.encode_observation(points[first], T_world_ee[first])
+        return DemoTensors(
+            T_world_ee=T_world_ee,
+            gripper_open=gripper_open[:, :num_demos].to(device=device, dtype=torch.float32),
+            scene_positions=positions[row_of_id],
+            scene_features=features[row_of_id],
+        )
 
     def training_targets(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """The checked inputs and targets of a training batch (see :meth:`forward`): ``points_world (B, P, 3)``,
@@ -447,6 +506,15 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         handed_in = [task for task, context in self._task_contexts.items() if context.handed_in]
         only_task = handed_in[0] if len(handed_in) == 1 else None
         return batch_task_names(batch.get("task"), batch_size, "instant_policy", only_task)
+
+
+def _first_rows(ids: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The distinct values of ``ids (B,)``, each row's position among them ``(B,)`` and each value's first row."""
+    unique, row_of_id = torch.unique(ids, return_inverse=True)
+    rows = torch.arange(len(ids), device=ids.device)
+    first = torch.full((len(unique),), len(ids), device=ids.device, dtype=rows.dtype).scatter_reduce(
+        0, row_of_id, rows, reduce="amin")
+    return unique, row_of_id, first
 
 
 def _hold_padded(actions: Tensor, is_pad: Tensor | None) -> Tensor:

@@ -14,7 +14,16 @@ from scipy.spatial.transform import Rotation
 from synthetic_demos import NUM_FRAMES, expected_actions, make_demonstration, object_pose, write_demo_dataset
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
+from lerobot_instant_policy.contract import (
+    ACTION_KEY,
+    CONTEXT_GRIPPER_OPEN_KEY,
+    CONTEXT_ID_KEY,
+    CONTEXT_POINTCLOUD_KEY,
+    CONTEXT_T_WORLD_EE_KEY,
+    POINTCLOUD_KEY,
+    STATE_KEY,
+    poses_from_vectors_torch,
+)
 from lerobot_instant_policy.data.demonstrations import Demonstration, DemonstrationError
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_from_pos_quat, pose_to_pos_quat, transform_points
 from lerobot_instant_policy.modeling_instant_policy import (
@@ -533,3 +542,70 @@ def test_n_is_capped_so_that_no_demonstration_repeats(tiny_dataset, monkeypatch)
     assert parts["num_demos"] == 2.0
     assert all(len(set(context.tolist())) == len(context) == 2 for context in drawn)
     assert all(int(episode) not in context for episode, context in zip(batch["episode_index"], drawn, strict=True))
+
+
+# ---------------------------------------------------------------------------------------------- a batch's own context
+
+
+def _carried_context(bank, episodes: np.ndarray, ids: list[int]) -> dict:
+    """The context keys of a batch that carries the waypoints of ``episodes (B, N)`` of ``bank``."""
+    arrays = bank.gather(episodes)
+    return {
+        CONTEXT_POINTCLOUD_KEY: torch.from_numpy(arrays.points_world),
+        CONTEXT_T_WORLD_EE_KEY: torch.from_numpy(arrays.T_world_ee),
+        CONTEXT_GRIPPER_OPEN_KEY: torch.from_numpy(arrays.gripper_open),
+        CONTEXT_ID_KEY: torch.tensor(ids, dtype=torch.int64),
+    }
+
+
+def test_a_batch_that_carries_its_context_trains_as_the_datasets_context_does(tiny_dataset, monkeypatch):
+    """The pseudo-task stream hands each row its context (``contract.CONTEXT_KEYS``). Handed the demonstrations the
+    dataset's bank draws, the loss is the dataset path's; the frozen encoder runs once per distinct context id."""
+    from lerobot_instant_policy.data.context_bank import ContextBank
+
+    config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, min_demos=2, max_demos=2)
+    policy = InstantPolicyPolicy(config, dataset_meta=tiny_dataset.meta).train()
+    batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=4, shuffle=False)))  # episode 0's frames
+    bank = policy.training_context_encoder().bank
+    monkeypatch.setattr(bank, "sample_context", lambda episode, n, rng: np.array([1, 2]))
+    torch.manual_seed(3)
+    dataset_loss, _ = policy.forward(batch)
+
+    with_points = ContextBank.from_dataset(REPO, tiny_dataset.root, config.num_waypoints)
+    carried = {key: value for key, value in batch.items() if key not in ("episode_index", "index")}
+    carried.update(_carried_context(with_points, np.array([[1, 2]] * 4), ids=[7, 7, 9, 9]))
+    encoded = []
+    encode_observation = policy.network.encode_observation
+    monkeypatch.setattr(policy.network, "encode_observation",
+                        lambda points, T: encoded.append(points.shape[:3]) or encode_observation(points, T))
+    torch.manual_seed(3)
+    carried_loss, parts = policy.forward(carried)
+
+    torch.testing.assert_close(carried_loss, dataset_loss, rtol=1e-4, atol=1e-5)
+    assert parts["num_demos"] == 2.0
+    assert encoded[0] == (2, 2, config.num_waypoints)  # the two distinct contexts, then the live clouds
+    carried_loss.backward()
+    assert all(parameter.grad is not None for parameter in policy.get_optim_params()[:3])
+
+
+def test_a_carried_context_that_is_malformed_is_refused_by_name(tiny_dataset):
+    from lerobot_instant_policy.data.context_bank import ContextBank
+
+    config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False)
+    policy = InstantPolicyPolicy(config).train()  # no dataset: the batch brings everything
+    batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=2, shuffle=False)))
+    batch = {key: value for key, value in batch.items() if key not in ("episode_index", "index")}
+    bank = ContextBank.from_dataset(REPO, tiny_dataset.root, config.num_waypoints)
+    context = _carried_context(bank, np.array([[1, 2], [1, 2]]), ids=[0, 0])
+    loss, _ = policy.forward({**batch, **context})
+    assert torch.isfinite(loss)
+    with pytest.raises(KeyError, match="observation.context.id"):
+        policy.forward({**batch, **{key: value for key, value in context.items() if key != CONTEXT_ID_KEY}})
+    with pytest.raises(ValueError, match="observation.context.pointcloud"):
+        policy.forward({**batch, **context, CONTEXT_POINTCLOUD_KEY: context[CONTEXT_POINTCLOUD_KEY][..., :100, :]})
+    bad = context[CONTEXT_GRIPPER_OPEN_KEY].clone()
+    bad[0, 0, 0] = float("nan")
+    with pytest.raises(ValueError, match="NaN"):
+        policy.forward({**batch, **context, CONTEXT_GRIPPER_OPEN_KEY: bad})
+    with pytest.raises(ValueError, match=r"\(B, N, L, 4, 4\)"):
+        policy.forward({**batch, **context, CONTEXT_T_WORLD_EE_KEY: context[CONTEXT_T_WORLD_EE_KEY][0]})
