@@ -125,9 +125,8 @@ class ContextBank:
             start, stop_index = int(row["dataset_from_index"]), int(row["dataset_to_index"])
             state, action = frames[STATE_KEY][start:stop_index], frames[ACTION_KEY][start:stop_index]
             where = f"episode {episode} of the dataset at {dataset.root}"
-            T_world_ee, gripper_open = _poses_and_gripper(state, action, where)
-            chosen = _extract(T_world_ee, gripper_open, num_waypoints, stop, where)
-            plans.append((episode, row["tasks"][0], chosen, start, T_world_ee[chosen], gripper_open[chosen]))
+            chosen, T_world_ee, gripper_open = waypoint_frames(state, action, num_waypoints, stop, where)
+            plans.append((episode, row["tasks"][0], chosen, start, T_world_ee, gripper_open))
         rows = np.concatenate([start + chosen for _, _, chosen, start, _, _ in plans])
         columns = [POINTCLOUD_KEY, "index"] if read_points else ["index"]
         selected = dataset.hf_dataset.select(rows).with_format("numpy", columns=columns)[:]
@@ -164,11 +163,9 @@ class ContextBank:
         waypoints = []
         for index, demo in enumerate(demonstrations):
             where = f"demonstration {index} of task {demo.task!r}"
-            T_world_ee, gripper_open = _poses_and_gripper(demo.state, demo.action, where)
-            chosen = _extract(T_world_ee, gripper_open, num_waypoints, stop, where)
-            points_world = demo.points_world[chosen]
+            chosen, T_world_ee, gripper_open = waypoint_frames(demo.state, demo.action, num_waypoints, stop, where)
             waypoints.append(
-                EpisodeWaypoints(index, demo.task, chosen, points_world, T_world_ee[chosen], gripper_open[chosen])
+                EpisodeWaypoints(index, demo.task, chosen, demo.points_world[chosen], T_world_ee, gripper_open)
             )
         return cls(waypoints)
 
@@ -263,8 +260,27 @@ class ContextBank:
         return np.vectorize(self._row, otypes=[np.int64])(indices)
 
 
-def _poses_and_gripper(state: np.ndarray, action: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """``T_world_ee (F, 4, 4)`` from ``state (F, 8)`` and the commanded gripper state ``(F,)`` (see module doc)."""
+def waypoint_frames(
+    state: np.ndarray,
+    action: np.ndarray,
+    num_waypoints: int,
+    stop: StopCriterion = StopCriterion(),
+    where: str = "a demonstration",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A demonstration's ``L = num_waypoints`` waypoints, as the bank holds them.
+
+    Args:
+        state: ``(F, 8)`` the frames' EE states (world frame; xyz, quaternion xyzw, gripper_open).
+        action: ``(F, 8)`` the frames' actions, same layout.
+        stop: when the EE "nearly stops" (:class:`~.waypoints.StopCriterion`).
+        where: names the demonstration in errors.
+
+    Returns:
+        ``chosen (L,)`` int64 frame indices (:func:`~.waypoints.extract_waypoints` on the EE poses and the commanded
+        gripper states), ``T_world_ee (L, 4, 4)`` float32 the EE poses there, world frame, and ``gripper_open (L,)``
+        float32 the commanded gripper states there (see the module docstring). ``DemonstrationError`` for NaN or
+        infinite values, an invalid quaternion or fewer than ``L`` frames.
+    """
     if not (np.isfinite(state).all() and np.isfinite(action).all()):
         raise DemonstrationError(f"{where}: {STATE_KEY} or {ACTION_KEY} contains NaN or infinite values")
     try:
@@ -272,11 +288,8 @@ def _poses_and_gripper(state: np.ndarray, action: np.ndarray, where: str) -> tup
     except ValueError as error:
         raise DemonstrationError(f"{where}: {STATE_KEY} holds an invalid EE quaternion ({error})") from error
     gripper_open = np.concatenate([state[:1, 7], action[:-1, 7]]).astype(np.float64)
-    return T_world_ee, gripper_open
-
-
-def _extract(T_world_ee, gripper_open, num_waypoints: int, stop: StopCriterion, where: str) -> np.ndarray:
     try:
-        return extract_waypoints(T_world_ee, gripper_open, num_waypoints, stop)
+        chosen = extract_waypoints(T_world_ee, gripper_open, num_waypoints, stop)
     except ValueError as error:
         raise DemonstrationError(f"{where}: {error}") from error
+    return chosen, T_world_ee[chosen].astype(np.float32), gripper_open[chosen].astype(np.float32)

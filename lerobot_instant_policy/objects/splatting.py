@@ -38,6 +38,7 @@ the same number ``S`` of samples; memory grows as ``B · C · N`` (a few hundred
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,7 +46,7 @@ import torch
 import trimesh
 
 from ..geometry.masked_fps import masked_farthest_point_sampling
-from .library import ObjectModel
+from .library import ObjectModel, load_object
 from .rendering import CameraConfig, camera_projection_matrix, camera_view_matrix, default_cameras
 
 DEFAULT_SURFACE_SAMPLES = 8192
@@ -105,6 +106,17 @@ def object_surface_samples(
     mesh = trimesh.Trimesh(vertices=model.vertices, faces=model.faces, process=False)
     points, face_index = trimesh.sample.sample_surface(mesh, num_points, seed=seed)
     return np.asarray(points, dtype=np.float32), np.asarray(mesh.face_normals[face_index], dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=256)
+def library_surface_samples(
+    object_id: str, num_points: int = DEFAULT_SURFACE_SAMPLES, seed: int = 0
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`object_surface_samples` of the library object ``object_id`` as CPU float32 tensors ``points
+    (num_points, 3)`` and ``normals (num_points, 3)``, object frame; cached per process (the 256 objects used last,
+    about 200 KB each at the default size). Treat them as read-only."""
+    points, normals = object_surface_samples(load_object(object_id), num_points, seed)
+    return torch.from_numpy(points), torch.from_numpy(normals)
 
 
 def gripper_surface_samples(gripper_open: bool, num_points: int = GRIPPER_SURFACE_SAMPLES, seed: int = 0) -> np.ndarray:
@@ -349,6 +361,7 @@ __all__ = [
     "SplatConfig",
     "SplatRenderer",
     "gripper_surface_samples",
+    "library_surface_samples",
     "object_surface_samples",
 ]
 

@@ -6,8 +6,10 @@ leaves only complete, loadable shard datasets behind; ``resume`` skips them. Whe
 merged in order into ``OUT`` itself by ``merge.merge_parallel``: byte for byte the dataset LeRobot's
 ``aggregate_datasets(..., concatenate_data=False)`` writes (each shard data file becomes one data file of ``OUT``;
 tested), but with the shards' data files rewritten by the rendering pool's processes instead of one after another,
-so the merge scales with cores like the rendering. Every task draws from its own random stream
-``(seed, task index)``, so the dataset does not depend on the number of workers.
+so the merge scales with cores like the rendering. Every task is planned from its own random stream
+``(seed, task index)`` (:func:`plan_task`, shared with the pseudo-task stream), and each demonstration's clouds are
+resampled from a stream of their own ``(seed, task index, 3, demonstration)``, so the dataset does not depend on the
+number of workers and rendering never changes what is planned.
 
 ``family`` picks the pseudo-task family, from ``reach`` to the paper's ``full`` (``pseudo_tasks.FAMILIES``). With
 ``tasks_per_object_group`` G > 1, consecutive groups of G tasks share their two objects (drawn from the stream
@@ -27,10 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from ..data.lerobot_format import DEFAULT_FPS, create_dataset, write_episode
-from ..objects.library import load_object, object_ids, validate_object_id
-from ..objects.rendering import PointCloudRenderer, RenderConfig
+from ..objects.library import ObjectModel, load_object, object_ids, validate_object_id
+from ..objects.rendering import CameraConfig, PointCloudRenderer, RenderConfig
 from .merge import merge_parallel
-from .replay import DemoConfig, GenerationError, hold_signature, make_demo
+from .replay import DemoConfig, DemoPlan, GenerationError, PseudoDemo, hold_signature, plan_demo, render_demo
 from .tasks import FAMILIES, PseudoTask, sample_pseudo_task
 
 SHARDS_DIR = ".shards"
@@ -109,20 +111,41 @@ def shares_object_layout(config: GenerationConfig, task_index: int) -> bool:
     return bool(np.random.default_rng([config.seed, task_index, 2]).random() < config.demo.shared_layout_fraction)
 
 
-def generate_task(
-    config: GenerationConfig, task_index: int, renderer: PointCloudRenderer, max_task_attempts: int = 10
-) -> tuple[PseudoTask, list]:
-    """Sample task ``task_index`` of ``config`` and render its ``demos_per_task`` demonstrations.
+@dataclass
+class PlannedTask:
+    """Task ``task_index`` of a config: the ``task``, its two ``objects`` (models, in the task's order) and its
+    planned ``demos`` (one :class:`~.replay.DemoPlan` each, rendered nothing yet)."""
 
-    A task none of whose scenes fits (see ``make_demo``) is replaced by a new draw from the same random stream (on
-    new objects, unless the task shares its group's objects).
+    task_index: int
+    task: PseudoTask
+    objects: list[ObjectModel]
+    demos: list[DemoPlan]
+
+
+def _view_cameras(config: GenerationConfig) -> list[CameraConfig] | None:
+    """The cameras a planned frame must have an object in view of: the render config's, or None for clouds that
+    need no camera (``render.cloud == "surface"``)."""
+    return config.render.cameras if config.render.cloud == "cameras" else None
+
+
+def plan_task(
+    config: GenerationConfig, task_index: int, num_demos: int | None = None, max_task_attempts: int = 10
+) -> PlannedTask:
+    """Sample task ``task_index`` of ``config`` and plan ``num_demos`` (default ``demos_per_task``) demonstrations
+    of it, rendering nothing (:func:`~.replay.plan_demo`); every draw comes from the stream ``(seed, task index)``.
+
+    A task none of whose scenes fits is replaced by a new draw from the same random stream (on new objects, unless
+    the task shares its group's objects); ``GenerationError`` after ``max_task_attempts`` draws.
     """
+    num_demos = config.demos_per_task if num_demos is None else num_demos
     rng = np.random.default_rng([config.seed, task_index])
     pool = config.pool()
     grouped = config.tasks_per_object_group > 1
     if grouped:
         group_rng = np.random.default_rng([config.seed, task_index // config.tasks_per_object_group, 1])
         chosen = group_rng.choice(len(pool), size=2, replace=False)
+    shift = 0.0 if shares_object_layout(config, task_index) else config.demo.layout_shift
+    cameras = _view_cameras(config)
     errors = []
     for _ in range(max_task_attempts):
         if not grouped:
@@ -133,17 +156,32 @@ def generate_task(
             config.waypoint_max_roll_deg,
         )
         try:
-            demos = [make_demo(task, objects, renderer, rng, config.demo)]
+            demos = [plan_demo(task, objects, rng, config.demo, cameras)]
             signature = hold_signature(task, demos[0].layout, objects)
-            shift = 0.0 if shares_object_layout(config, task_index) else config.demo.layout_shift
             start = demos[0].layout.T_world_objects if shift < 1.0 else None
-            for _ in range(config.demos_per_task - 1):
-                demos.append(make_demo(task, objects, renderer, rng, config.demo, signature, start, shift))
+            for _ in range(num_demos - 1):
+                demos.append(plan_demo(task, objects, rng, config.demo, cameras, signature, start, shift))
         except GenerationError as error:
             errors.append(str(error))
             continue
-        return task, demos
+        return PlannedTask(task_index, task, objects, demos)
     raise GenerationError(f"task {task_index}: {max_task_attempts} draws failed; last: {errors[-1]}")
+
+
+def generate_task(
+    config: GenerationConfig, task_index: int, renderer: PointCloudRenderer, max_task_attempts: int = 10
+) -> tuple[PseudoTask, list[PseudoDemo]]:
+    """Plan task ``task_index`` of ``config`` (:func:`plan_task`) and render its ``demos_per_task`` demonstrations
+    with ``renderer``, demonstration ``d``'s clouds resampled from the stream ``(seed, task index, 3, d)``."""
+    planned = plan_task(config, task_index, max_task_attempts=max_task_attempts)
+    demos = [
+        render_demo(
+            planned.task, planned.objects, plan, renderer,
+            np.random.default_rng([config.seed, task_index, 3, demo_index]), config.demo.num_points,
+        )
+        for demo_index, plan in enumerate(planned.demos)
+    ]
+    return planned.task, demos
 
 
 def task_record(task: PseudoTask, shared_layout: bool) -> dict:

@@ -1,12 +1,16 @@
-"""Replaying a pseudo-task as rendered pseudo-demonstrations.
+"""Replaying a pseudo-task as pseudo-demonstrations: planned, then rendered.
 
 Each demonstration puts the task's two objects at new poses and the gripper at a new start pose, moves the
 gripper through the task's waypoints (fixed in the objects' initial frames), attaches the nearest object
-within reach when the gripper closes and releases it when it opens, and renders a segmented cloud per frame.
+within reach when the gripper closes and releases it when it opens. :func:`plan_demo` does all of that and every
+check of a scene, rendering nothing (a :class:`DemoPlan`); :func:`render_demo` then renders a segmented cloud per
+frame with pybullet. The pseudo-task stream (``stream.py``) renders the same plans by splatting, only at the frames
+it needs.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +20,7 @@ from ..contract import vectors_from_poses
 from ..geometry.sampling import resample_indices
 from ..geometry.se3 import invert, look_rotation, make_pose, transform_points
 from ..objects.library import ObjectModel
-from ..objects.rendering import PointCloudRenderer
+from ..objects.rendering import CameraConfig, PointCloudRenderer, camera_projection_matrix, camera_view_matrix
 from .tasks import GRASP_REACH, PseudoTask, Waypoint
 from .trajectory import (
     Step,
@@ -69,6 +73,30 @@ class SceneLayout:
 
     T_world_objects: np.ndarray
     T_world_ee_start: np.ndarray
+
+
+@dataclass
+class DemoPlan:
+    """One planned demonstration (``F`` frames): everything but its clouds.
+
+    ``layout`` its initial scene; ``steps`` per frame the observed EE pose (world frame) and gripper state (gripper
+    faults included: what a camera sees) and the action; ``state (F, 8)`` and ``action (F, 8)`` float32 in the
+    data contract's layout (xyz, quaternion xyzw, gripper_open); ``T_world_objects (F, 2, 4, 4)`` the tracked
+    object poses; ``held_object (F,)`` int8 (−1 when nothing is held); ``waypoint_frames`` the frame at which each
+    waypoint is reached.
+    """
+
+    layout: SceneLayout
+    steps: list[Step]
+    state: np.ndarray
+    action: np.ndarray
+    T_world_objects: np.ndarray
+    held_object: np.ndarray
+    waypoint_frames: list[int]
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.steps)
 
 
 @dataclass
@@ -216,25 +244,26 @@ def hold_signature(task: PseudoTask, layout: SceneLayout, objects: list[ObjectMo
     return tuple(int(held[min(frame + 1, len(held) - 1)]) for frame in waypoint_frames)
 
 
-def make_demo(
+def plan_demo(
     task: PseudoTask,
     objects: list[ObjectModel],
-    renderer: PointCloudRenderer,
     rng: np.random.Generator,
     config: DemoConfig,
+    cameras: Sequence[CameraConfig] | None,
     expected_signature: tuple[int, ...] | None = None,
     T_world_objects_start: np.ndarray | None = None,
     layout_shift: float = 0.0,
-) -> PseudoDemo:
-    """Render one demonstration of ``task``; scenes are resampled until one fits.
+) -> DemoPlan:
+    """Plan one demonstration of ``task``, rendering nothing; scenes are resampled until one fits.
 
-    A scene fits when every frame's cloud has points, neither the gripper nor an object goes below the table
-    (``min_height``) and, if ``expected_signature`` is given, the same objects get grasped at the same waypoints
-    as in the task's other demonstrations. ``T_world_objects_start (2, 4, 4)`` fixes the objects' initial poses (only
-    the gripper's start pose is sampled), or with ``layout_shift`` > 0 the poses they move from by that fraction of
-    the way to each sampled layout (:func:`shift_layout`; scenes whose objects then overlap are resampled).
+    A scene fits when neither the gripper nor an object goes below the table (``min_height``), every frame has a
+    surface sample of some object inside some camera's image (``cameras``; None for clouds that need no camera,
+    ``RenderConfig.cloud == "surface"``) and, if ``expected_signature`` is given, the same objects get grasped at
+    the same waypoints as in the task's other demonstrations. ``T_world_objects_start (2, 4, 4)`` fixes the objects'
+    initial poses (only the gripper's start pose is sampled), or with ``layout_shift`` > 0 the poses they move from
+    by that fraction of the way to each sampled layout (:func:`shift_layout`; scenes whose objects then overlap are
+    resampled). Every random draw comes from ``rng``.
     """
-    renderer.set_objects(objects)
     reasons = []
     for _ in range(config.max_scene_attempts):
         layout = sample_layout(objects, rng, config)
@@ -260,45 +289,73 @@ def make_demo(
         if _lowest_point(objects, T_world_objects) < config.min_height:
             reasons.append("an object went below the table")
             continue
-        demo = _render(task, layout, steps, T_world_objects, held, renderer, rng, config)
-        if demo is None:
+        if cameras is not None and not frames_in_view(objects, T_world_objects, cameras).all():
             reasons.append("a frame had no object in view")
             continue
-        demo.waypoint_frames = _frames_of(steps, [poses[frame] for frame in waypoint_frames])
-        return demo
+        state = vectors_from_poses(
+            np.stack([step.T_world_ee for step in steps]), np.array([step.gripper_open for step in steps])
+        ).astype(np.float32)
+        action = vectors_from_poses(
+            np.stack([step.action_T_world_ee for step in steps]),
+            np.array([step.action_gripper_open for step in steps]),
+        ).astype(np.float32)
+        frames = _frames_of(steps, [poses[frame] for frame in waypoint_frames])
+        return DemoPlan(layout, steps, state, action, T_world_objects, held, frames)
     raise GenerationError(
         f"task {task.task_id}: no valid scene in {config.max_scene_attempts} attempts "
         f"({', '.join(sorted(set(reasons)))})"
     )
 
 
-def _render(
+def render_demo(
     task: PseudoTask,
-    layout: SceneLayout,
-    steps: list[Step],
-    T_world_objects: np.ndarray,
-    held: np.ndarray,
+    objects: list[ObjectModel],
+    plan: DemoPlan,
     renderer: PointCloudRenderer,
     rng: np.random.Generator,
-    config: DemoConfig,
-) -> PseudoDemo | None:
-    frames = len(steps)
-    points = np.zeros((frames, config.num_points, 3), dtype=np.float32)
-    labels = np.zeros((frames, config.num_points), dtype=np.int8)
-    for index, step in enumerate(steps):
-        cloud, cloud_labels = renderer.render(list(T_world_objects[index]), step.T_world_ee, step.gripper_open)
+    num_points: int,
+) -> PseudoDemo:
+    """Render every frame of ``plan`` with ``renderer`` and resample each cloud to ``num_points``
+    (:func:`~..geometry.sampling.resample_indices`, whose draws come from ``rng``: a stream of its own, so that
+    rendering never changes what is planned). A frame whose cloud comes out empty although :func:`plan_demo` found
+    its objects in view (e.g. hidden behind the gripper from every camera) raises ``GenerationError``."""
+    renderer.set_objects(objects)
+    frames = plan.num_frames
+    points = np.zeros((frames, num_points, 3), dtype=np.float32)
+    labels = np.zeros((frames, num_points), dtype=np.int8)
+    for index, step in enumerate(plan.steps):
+        cloud, cloud_labels = renderer.render(list(plan.T_world_objects[index]), step.T_world_ee, step.gripper_open)
         if len(cloud) == 0:
-            return None
-        chosen = resample_indices(cloud, config.num_points, rng)
+            raise GenerationError(f"task {task.task_id}: frame {index} rendered no object point")
+        chosen = resample_indices(cloud, num_points, rng)
         points[index] = cloud[chosen]
         labels[index] = cloud_labels[chosen]
-    state = vectors_from_poses(
-        np.stack([step.T_world_ee for step in steps]), np.array([step.gripper_open for step in steps])
-    ).astype(np.float32)
-    action = vectors_from_poses(
-        np.stack([step.action_T_world_ee for step in steps]), np.array([step.action_gripper_open for step in steps])
-    ).astype(np.float32)
-    return PseudoDemo(task, layout, points, labels, state, action, T_world_objects, held)
+    return PseudoDemo(
+        task, plan.layout, points, labels, plan.state, plan.action, plan.T_world_objects, plan.held_object,
+        list(plan.waypoint_frames),
+    )
+
+
+def frames_in_view(
+    objects: list[ObjectModel], T_world_objects: np.ndarray, cameras: Sequence[CameraConfig]
+) -> np.ndarray:
+    """Which frames ``(F,)`` bool have a surface sample (``ObjectModel.surface_points``) of some object, posed by
+    ``T_world_objects (F, O, 4, 4)``, inside some camera's image and depth range (the pinhole model of
+    ``objects/rendering.py``; occlusion is not considered)."""
+    clip_from_world = np.stack([camera_projection_matrix(camera) @ camera_view_matrix(camera) for camera in cameras])
+    near = np.array([camera.near for camera in cameras])[None, :, None]
+    far = np.array([camera.far for camera in cameras])[None, :, None]
+    frames = len(T_world_objects)
+    seen = np.zeros(frames, dtype=bool)
+    for index, model in enumerate(objects):
+        # the distinct poses only: an object at rest keeps one pose over many frames
+        poses, inverse = np.unique(T_world_objects[:, index].reshape(frames, 16), axis=0, return_inverse=True)
+        clip_from_object = clip_from_world[None] @ poses.reshape(-1, 1, 4, 4)  # (U, C, 4, 4)
+        clip = model.surface_points @ np.swapaxes(clip_from_object[..., :3], -1, -2) + clip_from_object[..., None, :, 3]
+        depth = clip[..., 3]  # (U, C, S)
+        inside = (depth > near) & (depth < far) & (np.abs(clip[..., 0]) <= depth) & (np.abs(clip[..., 1]) <= depth)
+        seen |= inside.any(axis=(1, 2))[inverse.reshape(-1)]
+    return seen
 
 
 def _lowest_point(objects: list[ObjectModel], T_world_objects: np.ndarray) -> float:

@@ -8,7 +8,7 @@ import pytest
 from synthetic_demos import make_demonstration, object_pose, write_demo_dataset
 
 from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
-from lerobot_instant_policy.data.context_bank import ContextBank
+from lerobot_instant_policy.data.context_bank import ContextBank, waypoint_frames
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
 from lerobot_instant_policy.data.lerobot_format import contract_features, create_dataset, read_episode, write_episode
 from lerobot_instant_policy.geometry.se3 import pose_from_pos_quat
@@ -140,6 +140,19 @@ def test_from_demonstrations_in_python(synthetic_root):
     bank = ContextBank.from_demonstrations(demos, 6)
     assert bank.episode_indices.tolist() == [0, 1, 2] and bank.tasks == ["lift"]
     np.testing.assert_array_equal(bank.points_world[1], demos[1].points_world[bank.frame_indices[1]])
+
+
+def test_waypoint_frames_give_the_banks_rows(pseudo_dataset, pseudo_bank):
+    """The public reduction is the bank's: the same frames, poses and commanded gripper states per episode."""
+    _, _, episodes = pseudo_dataset
+    for index, episode in enumerate(episodes):
+        chosen, T_world_ee, gripper_open = waypoint_frames(episode["state"], episode["action"], L)
+        np.testing.assert_array_equal(chosen, pseudo_bank.frame_indices[index])
+        np.testing.assert_array_equal(T_world_ee, pseudo_bank.T_world_ee[index])
+        np.testing.assert_array_equal(gripper_open, pseudo_bank.gripper_open[index])
+        assert T_world_ee.dtype == gripper_open.dtype == np.float32
+    with pytest.raises(DemonstrationError, match="the third one: a demonstration of"):
+        waypoint_frames(episodes[0]["state"][:5], episodes[0]["action"][:5], L, where="the third one")
 
 
 def test_a_task_with_a_single_episode_has_no_context(synthetic_root):

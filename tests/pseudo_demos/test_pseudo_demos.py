@@ -17,12 +17,14 @@ from lerobot_instant_policy.geometry.se3 import (
     transform_points,
 )
 from lerobot_instant_policy.objects.library import is_held_out, load_object
-from lerobot_instant_policy.objects.rendering import PointCloudRenderer, RenderConfig
+from lerobot_instant_policy.objects.rendering import PointCloudRenderer, RenderConfig, default_cameras
 from lerobot_instant_policy.pseudo_demos.replay import (
     DemoConfig,
     GenerationError,
+    frames_in_view,
     hold_signature,
-    make_demo,
+    plan_demo,
+    render_demo,
     sample_layout,
     shift_layout,
 )
@@ -260,6 +262,13 @@ def test_waypoint_roll_bound_turns_every_gripper_pose_within_it(objects):
 # --------------------------------------------------------------------------------------- demonstrations
 
 
+def make_demo(task, objects, renderer, rng, config, expected_signature=None, T_world_objects_start=None):
+    """Plan a demonstration from ``rng`` with the default cameras, then render it (clouds resampled from a stream of
+    their own)."""
+    plan = plan_demo(task, objects, rng, config, default_cameras(), expected_signature, T_world_objects_start)
+    return render_demo(task, objects, plan, renderer, np.random.default_rng(7), config.num_points)
+
+
 @pytest.fixture(scope="module")
 def pick_task(objects):
     assert not any(is_held_out(object_id) for object_id in OBJECT_IDS)
@@ -440,6 +449,34 @@ def test_generation_error_when_objects_never_in_view(pick_task, objects, rendere
     config = DemoConfig(object_x_range=(20.0, 20.1), max_scene_attempts=2)
     with pytest.raises(GenerationError, match=r"no valid scene in 2 attempts \(a frame had no object in view\)"):
         make_demo(pick_task, objects, renderer, np.random.default_rng(0), config)
+
+
+def test_frames_in_view_agree_with_what_pybullet_renders(renderer, objects):
+    """The planning-time view check (no rendering) says a frame is in view exactly where pybullet's cameras see an
+    object: both objects on the table, one of them carried far away, both far away."""
+    renderer.set_objects(objects)
+    far = make_pose([20.0, 0.0, 0.0], Rotation.identity())
+    scenes = [SCENE_POSES, [SCENE_POSES[0], far], [far, far]]
+    in_view = frames_in_view(objects, np.stack([np.stack(poses) for poses in scenes]), default_cameras())
+    assert in_view.tolist() == [True, True, False]
+    for poses, seen in zip(scenes, in_view, strict=True):
+        assert (len(renderer.render(poses, GRIPPER_AWAY, True)[0]) > 0) == seen
+
+
+def test_rendering_keeps_the_plan_and_draws_from_its_own_stream(pick_task, objects, renderer):
+    """A planned demonstration rendered with two different resampling streams: the same trajectory, objects and
+    waypoint frames as planned; the clouds differ only in which points were kept."""
+    plan = plan_demo(pick_task, objects, np.random.default_rng(300), DemoConfig(), default_cameras())
+    again = plan_demo(pick_task, objects, np.random.default_rng(300), DemoConfig(), default_cameras())
+    np.testing.assert_array_equal(again.state, plan.state)
+    first, second = (
+        render_demo(pick_task, objects, plan, renderer, np.random.default_rng(seed), 512) for seed in (1, 2)
+    )
+    for demo in (first, second):
+        for name in ("state", "action", "T_world_objects", "held_object", "waypoint_frames"):
+            np.testing.assert_array_equal(getattr(demo, name), getattr(plan, name), err_msg=name)
+        assert demo.points.shape == (plan.num_frames, 512, 3)
+    assert not np.array_equal(first.points, second.points)
 
 
 def test_a_shared_object_layout_survives_scene_retries(pick_task, objects, renderer):
