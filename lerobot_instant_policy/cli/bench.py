@@ -20,6 +20,8 @@ through ``torch.compile`` for the training step) and ``--compare-compile-model``
 ``warmup_s``.
 ``lerobot-ip-bench lerobot-train --root DIR``: ``lerobot-train``'s own samples per second on a dataset, end to end
 (data loader, LeRobot's loop, the update), for each ``--num-workers`` and ``--omp-wait-policy`` in alternation.
+``lerobot-ip-bench stream --config CONFIG``: fresh pseudo-task samples per second of the stream alone and feeding
+the training update, per ``--presets`` width, with the update's share spent generating (``benchmarks.stream``).
 The benchmarks themselves are :mod:`lerobot_instant_policy.benchmarks`. The repository's development benchmarks
 (the geometry encoder alone, a training row's data) are ``python -m workbench.cli.bench`` in a clone, not installed.
 """
@@ -49,7 +51,8 @@ TRAIN_STEP_COMPARE_FLAGS = {
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lerobot-ip-bench", description="Benchmarks that print JSON.")
     commands = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_generate, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_lerobot_train):
+    for add in (_add_generate, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_lerobot_train,
+                _add_stream):
         add(commands)
     return parser
 
@@ -270,6 +273,38 @@ def _run_lerobot_train(parser: argparse.ArgumentParser, args: argparse.Namespace
     return bench_lerobot_train(args.root, args.repo_id, args.steps, args.skip, args.batch_size, args.log_every,
                                args.threads, tuple(args.num_workers), tuple(args.omp_wait_policy),
                                args.compile_model == "true", args.rounds)
+
+
+# ---------------------------------------------------------------------------------------------------- stream
+def _add_stream(commands) -> None:
+    stream = commands.add_parser("stream", help="fresh pseudo-task samples per second: the stream alone and feeding "
+                                                "the training update, per preset (width)")
+    stream.add_argument("--config", default="configs/generate/train_large.json",
+                        help="a lerobot-ip-generate JSON config: the distributions the stream draws from")
+    stream.add_argument("--presets", nargs="+", choices=["small", "paper"], default=["small"],
+                        help="instant_policy presets (widths) to time the update of")
+    stream.add_argument("--batch-size", type=int, default=8)
+    stream.add_argument("--batches", type=int, default=3, help="timed batches (after one warm-up batch)")
+    stream.add_argument("--samples-per-task", type=int, default=1,
+                        help="live frames per task (1: every sample from a fresh task)")
+    stream.add_argument("--tasks-per-render", type=int, help="tasks rendered in one batched call (default: the "
+                                                             "stream's)")
+    stream.add_argument("--device", help="default: cuda when there is one, else cpu")
+    stream.add_argument("--json", action="store_true", help=JSON_HELP)
+    stream.set_defaults(handler=_run_stream)
+
+
+def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    if min(args.batch_size, args.batches, args.samples_per_task, args.tasks_per_render or 1) <= 0:
+        parser.error("--batch-size, --batches, --samples-per-task and --tasks-per-render must be positive")
+    from ..benchmarks.stream import stream_benchmark
+    from ..pseudo_demos.stream import StreamConfig
+
+    overrides = {"samples_per_task": args.samples_per_task}
+    if args.tasks_per_render:
+        overrides["tasks_per_render"] = args.tasks_per_render
+    config = StreamConfig.from_generate_config(args.config, **overrides)
+    return stream_benchmark(config, tuple(args.presets), args.batch_size, args.batches, args.device)
 
 
 if __name__ == "__main__":

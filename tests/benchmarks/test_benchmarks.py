@@ -143,3 +143,29 @@ def test_inference_benchmark_times_the_mean_of_several_samples(capsys):
     with pytest.raises(SystemExit):
         main(["inference", "--samples-per-prediction", "0"])
     assert "--samples-per-prediction must be positive" in capsys.readouterr().err
+
+
+def test_stream_benchmark_times_the_stream_alone_and_feeding_the_update(capsys, tmp_path):
+    from lerobot_instant_policy.cli.bench import main
+
+    config = tmp_path / "stream.json"
+    config.write_text(json.dumps({"seed": 3, "object_pool": ["pb/cube", "pb/duck"]}))
+    assert main(["stream", "--config", str(config), "--batch-size", "2", "--batches", "1", "--samples-per-task", "2",
+                 "--tasks-per-render", "1", "--device", "cpu", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["device"] == "cpu" and result["samples_per_task"] == 2
+    alone, small = result["stream_alone"], result["presets"]["small"]
+    assert alone["samples_per_s"] > 0 and alone["tasks_per_s"] == pytest.approx(alone["samples_per_s"] / 2)
+    assert (alone["N"], alone["L"]) == (2, 10)  # the small preset's max_demos and num_waypoints
+    assert small["hidden_dim"] == 128 and small["generate_s"] > 0 and small["update_s"] > 0
+    assert 0 < small["generating_share"] < 1
+    assert small["samples_per_s"] == pytest.approx(2 / (small["generate_s"] + small["update_s"]))
+
+
+def test_stream_benchmark_refuses_non_positive_sizes(capsys):
+    from lerobot_instant_policy.cli.bench import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["stream", "--batches", "0"])
+    assert exit_info.value.code == 2
+    assert "must be positive" in capsys.readouterr().err

@@ -1,0 +1,63 @@
+"""``lerobot-ip-train``: ``lerobot-train`` on the pseudo-task stream (``stream_training``): fresh pseudo-tasks drawn
+and rendered as training goes, from the distributions of a ``lerobot-ip-generate`` config.
+
+  lerobot-ip-train --stream.config configs/generate/train_large.json --policy.type=instant_policy \\
+      --policy.device=cuda --batch_size=64 --steps=20000 --output_dir=outputs/train/stream
+  lerobot-ip-train --stream.config configs/generate/train_large.json --stream.samples_per_task 8 \\
+      --policy.type=instant_policy --policy.device=cpu --batch_size=8 --steps=200 --output_dir=outputs/train/cpu
+  accelerate launch --num_processes 2 -m lerobot_instant_policy.cli.train_stream --stream.config ... (one stream
+      per process)
+
+Every flag not of ``--stream.`` goes to ``lerobot-train`` as it is (``--policy.*``, ``--steps``, ``--resume`` …);
+``--dataset.*`` is the stream's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+
+from ..pseudo_demos.stream import StreamConfig
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lerobot-ip-train", description=__doc__.split("\n\n")[0], allow_abbrev=False,
+                                     epilog="every other flag goes to lerobot-train")
+    parser.add_argument("--stream.config", dest="config", required=True,
+                        help="a lerobot-ip-generate JSON config: the pseudo-task distributions (family, objects, "
+                             "layouts, augmentations, seed)")
+    parser.add_argument("--stream.samples_per_task", dest="samples_per_task", type=int,
+                        help="live frames drawn per task (default 1: every sample from a task never drawn before; more "
+                             "on a CPU, where rendering is dear)")
+    parser.add_argument("--stream.tasks_per_render", dest="tasks_per_render", type=int,
+                        help="tasks planned, then rendered in one batched call")
+    parser.add_argument("--stream.seed", dest="seed", type=int, help="the stream's seed (default: the config's)")
+    return parser
+
+
+def stream_config_from_args(args: argparse.Namespace) -> StreamConfig:
+    overrides = {name: getattr(args, name) for name in ("samples_per_task", "tasks_per_render")
+                 if getattr(args, name) is not None}
+    config = StreamConfig.from_generate_config(args.config, **overrides)
+    if args.seed is None:
+        return config
+    return dataclasses.replace(config, generation=dataclasses.replace(config.generation, seed=args.seed))
+
+
+def main(argv: list[str] | None = None) -> int:
+    from ..stream_training import train
+
+    parser = build_parser()
+    args, lerobot_argv = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    try:
+        config = stream_config_from_args(args)
+        train(config, lerobot_argv)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"{parser.prog}: error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

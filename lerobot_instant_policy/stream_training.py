@@ -1,0 +1,153 @@
+"""``lerobot-train`` on the pseudo-task stream (``pseudo_demos.stream``): LeRobot's own training loop, optimizer,
+scheduler, checkpoints, resume, logging and accelerate, with every sample drawn from a task no earlier sample used.
+
+LeRobot 0.6.1 builds its training data in ``lerobot.scripts.lerobot_train.train`` by calling
+``make_train_eval_datasets(cfg)`` and hands the data loader to ``accelerator.prepare``; it has no hook for a dataset
+of another kind. :func:`train` enters it at exactly those two names and nowhere else (the seam is tested against the
+pinned LeRobot version):
+
+* ``make_train_eval_datasets`` returns a :class:`StreamDataset` (a ``torch`` ``IterableDataset`` with LeRobot's
+  ``meta``, ``num_frames`` and ``num_episodes``) and no eval split; ``--dataset.streaming`` is set, so LeRobot uses
+  no sampler and no shuffling. The stream's N, L, T and P come from the policy config (``max_demos``,
+  ``num_waypoints``, ``horizon``, the clouds' size), so its batches are what the policy's training forward reads.
+* ``accelerate.Accelerator`` is :class:`StreamAccelerator`, which leaves the stream's data loader unprepared: every
+  process iterates its own stream (``rank`` / ``world_size``: disjoint task indices), instead of accelerate's
+  ``IterableDatasetShard``, which would make each process draw every process's samples and drop all but its own.
+  Batches reach the policy's device through LeRobot's pre-processor (its ``device_processor`` step).
+
+A resumed run (``--resume=true``) starts its stream past every task the checkpoint's steps could have drawn
+(:func:`resume_start_task`). Every process writes the stream it draws to ``OUTPUT_DIR/stream/process-R-from-task-S
+.json`` (the config, its rank and first task).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from .contract import ACTION_KEY, POINTCLOUD_KEY, POINTCLOUD_NAMES, POSE_GRIPPER_NAMES, STATE_KEY
+from .pseudo_demos.stream import PseudoTaskStream, StreamConfig
+
+STREAM_REPO_ID = "local/pseudo_task_stream"
+# Where each process records the stream it draws (its config, place and first task), under the run's output_dir.
+STREAM_RECORDS = "stream"
+# Task indices a resumed stream skips per sample the checkpoint's steps drew: room for the tasks that failed to plan
+# and for the batches the data loader had prefetched.
+RESUME_TASKS_PER_SAMPLE = 2
+
+
+@dataclass
+class StreamDatasetMetadata:
+    """What ``lerobot-train`` reads of a dataset's ``meta``, for the stream: the data contract's features with
+    ``num_points`` points per cloud, no statistics (``instant_policy`` normalises nothing outside its network), no
+    cameras and no language columns. Not a ``LeRobotDatasetMetadata``: the policy reads no context bank from it."""
+
+    num_points: int
+    fps: int
+    repo_id: str = STREAM_REPO_ID
+    root: Path | None = None
+    robot_type: str = "pseudo_task_stream"
+    stats: dict | None = None
+    camera_keys: tuple = ()
+    has_language_columns: bool = False
+
+    @property
+    def features(self) -> dict:
+        pose = {"dtype": "float32", "shape": (len(POSE_GRIPPER_NAMES),), "names": list(POSE_GRIPPER_NAMES)}
+        return {
+            POINTCLOUD_KEY: {"dtype": "float32", "shape": (self.num_points, 3), "names": list(POINTCLOUD_NAMES)},
+            STATE_KEY: pose,
+            ACTION_KEY: dict(pose),
+        }
+
+
+class StreamDataset(torch.utils.data.IterableDataset):
+    """:class:`PseudoTaskStream` as ``lerobot-train`` takes a dataset: ``meta``, and the run's size for its logs
+    (``num_frames``: the samples it will draw, ``num_episodes``: the demonstrations behind them)."""
+
+    def __init__(self, stream: PseudoTaskStream, meta: StreamDatasetMetadata, num_samples: int):
+        super().__init__()
+        self.stream, self.meta = stream, meta
+        self.num_frames = num_samples
+        config = stream.config
+        self.num_episodes = math.ceil(num_samples / config.samples_per_task) * (config.num_demos + 1)
+
+    def __iter__(self):
+        return iter(self.stream)
+
+
+def resume_start_task(checkpoint_path: Path | None, batch_size: int, world_size: int) -> int:
+    """The first task index of a run resumed from ``checkpoint_path`` (0 for a fresh run): past
+    ``RESUME_TASKS_PER_SAMPLE`` tasks for every sample the checkpoint's steps drew on every process."""
+    if checkpoint_path is None:
+        return 0
+    step_file = Path(checkpoint_path) / "training_state" / "training_step.json"
+    step = int(json.loads(step_file.read_text())["step"])
+    return step * batch_size * world_size * RESUME_TASKS_PER_SAMPLE
+
+
+def stream_config_for(policy_config, stream_config: StreamConfig) -> StreamConfig:
+    """``stream_config`` with the N, L, T and P the policy trains on (its ``max_demos``, ``num_waypoints``,
+    ``horizon`` and clouds' size)."""
+    return dataclasses.replace(stream_config, num_demos=policy_config.max_demos,
+                               num_waypoints=policy_config.num_waypoints, horizon=policy_config.horizon,
+                               num_points=policy_config.num_points)
+
+
+def make_stream_datasets(cfg, stream_config: StreamConfig, rank: int, world_size: int):
+    """``make_train_eval_datasets`` for the stream: the :class:`StreamDataset` of ``stream_config`` for this process,
+    and no eval split. Rendering runs on the policy's device when the data loader has no worker processes, else on
+    the CPU in the workers."""
+    config = stream_config_for(cfg.policy, stream_config)
+    device = cfg.policy.device if cfg.num_workers == 0 else "cpu"
+    start = resume_start_task(cfg.checkpoint_path if cfg.resume else None, cfg.batch_size, world_size)
+    stream = PseudoTaskStream(config, device=device, rank=rank, world_size=world_size, start_task=start)
+    meta = StreamDatasetMetadata(num_points=config.num_points, fps=config.generation.fps)
+    record = Path(cfg.output_dir) / STREAM_RECORDS / f"process-{rank}-from-task-{start}.json"
+    record.parent.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps({"rank": rank, "world_size": world_size, "start_task": start,
+                                  "config": dataclasses.asdict(config)}, indent=2))
+    logging.info("instant_policy: training on the pseudo-task stream from task %d (process %d of %d): %s",
+                 start, rank, world_size, stream.describe())
+    return StreamDataset(stream, meta, cfg.steps * cfg.batch_size), None
+
+
+def stream_accelerator_class():
+    """``accelerate.Accelerator`` that leaves a :class:`StreamDataset`'s data loader as it is (module docstring)."""
+    from accelerate import Accelerator
+
+    class StreamAccelerator(Accelerator):
+        def prepare_data_loader(self, data_loader, device_placement=None, slice_fn_for_dispatch=None):
+            if isinstance(data_loader.dataset, StreamDataset):
+                return data_loader
+            return super().prepare_data_loader(data_loader, device_placement, slice_fn_for_dispatch)
+
+    return StreamAccelerator
+
+
+def train(stream_config: StreamConfig, lerobot_argv: list[str]) -> None:
+    """Run ``lerobot-train`` with ``lerobot_argv`` (its own flags; ``--dataset.repo_id`` and
+    ``--dataset.streaming`` are set here) on ``stream_config``'s stream (module docstring)."""
+    import sys
+
+    for flag in ("--dataset.repo_id", "--dataset.root", "--dataset.streaming"):
+        if any(arg.split("=")[0] == flag for arg in lerobot_argv):
+            raise ValueError(f"{flag} is set by the stream; leave it out")
+    import accelerate
+    from accelerate import PartialState
+    from lerobot.scripts import lerobot_train
+
+    def make_datasets(cfg):  # called after lerobot-train made its Accelerator: the process's place is known
+        state = PartialState()
+        return make_stream_datasets(cfg, stream_config, state.process_index, state.num_processes)
+
+    lerobot_train.make_train_eval_datasets = make_datasets
+    accelerate.Accelerator = stream_accelerator_class()
+    sys.argv = ["lerobot-train", f"--dataset.repo_id={STREAM_REPO_ID}", "--dataset.streaming=true", *lerobot_argv]
+    lerobot_train.main()
