@@ -70,6 +70,7 @@ MODULES = {
     "lerobot-ip-generate": "lerobot_instant_policy.cli.generate",
     "lerobot-ip-action-error": "lerobot_instant_policy.cli.action_error",
     "lerobot-ip-loss-curve": "lerobot_instant_policy.cli.loss_curve",
+    "lerobot-ip-train": "lerobot_instant_policy.cli.train_stream",
 }
 
 

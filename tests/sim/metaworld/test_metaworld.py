@@ -419,10 +419,10 @@ def test_swap_control_reads_another_kind_of_tasks_expert_relabelled(monkeypatch,
     """With --swap each task's lerobot-eval reads another task's expert demonstrations, recorded on the set's seeds
     and labelled with the task evaluated (reach and push are of one kind, so each reads the other; on MT10 every task
     reads one of another kind); the runs go to runs/<policy>-swap, apart from the own-demonstration runs."""
-    from lerobot_instant_policy.evaluation.suite import swap_sources
-    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import MT10_TASKS
     from lerobot_instant_policy.evaluation import metaworld_suite, suite
+    from lerobot_instant_policy.evaluation.suite import swap_sources
     from lerobot_instant_policy.sim.metaworld import recording
+    from lerobot_instant_policy.sim.metaworld.configuration_metaworld import MT10_TASKS
 
     recorded, commands = [], []
 
