@@ -7,7 +7,7 @@ import dataclasses
 import sys
 
 from ..config_io import load_config
-from ..objects.rendering import CLOUD_SOURCES
+from ..objects.rendering import CLOUD_SOURCES, RENDERERS
 from ..pseudo_demos.generation import GenerationConfig, generate_dataset
 from ..pseudo_demos.tasks import FAMILIES
 
@@ -31,6 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks-per-object-group", type=int, help="consecutive tasks that share their two objects")
     parser.add_argument("--cloud", choices=list(CLOUD_SOURCES),
                         help="cameras: rendered segmented depth (default); surface: complete object surface samples")
+    parser.add_argument("--renderer", choices=list(RENDERERS),
+                        help="what renders the cameras' clouds: pybullet (default) or splat (the pseudo-task "
+                             "stream's z-buffer splatting, on the CPU)")
     parser.add_argument("--share-object-layout", action="store_true",
                         help="every demonstration of a task places the objects as its first one (only the start "
                              "differs): --shared-layout-fraction 1")
@@ -71,8 +74,9 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
         "waypoint_max_roll_deg": args.waypoint_max_roll_deg,
     }
     config = dataclasses.replace(config, **{key: value for key, value in overrides.items() if value is not None})
-    if args.cloud is not None:
-        config = dataclasses.replace(config, render=dataclasses.replace(config.render, cloud=args.cloud))
+    render_overrides = {key: value for key, value in (("cloud", args.cloud), ("renderer", args.renderer)) if value}
+    if render_overrides:
+        config = dataclasses.replace(config, render=dataclasses.replace(config.render, **render_overrides))
     demo_overrides = {
         "shared_layout_fraction": 1.0 if args.share_object_layout else args.shared_layout_fraction,
         "layout_shift": args.layout_shift,

@@ -19,6 +19,7 @@ from .library import ObjectModel
 
 _HIDDEN_POSITION = (0.0, 0.0, -50.0)
 CLOUD_SOURCES = ("cameras", "surface")
+RENDERERS = ("pybullet", "splat")
 
 
 @dataclass
@@ -49,17 +50,25 @@ class RenderConfig:
     ``cloud``: ``"cameras"`` renders the segmented depth of ``cameras`` (partial views, occlusion by the gripper and
     by the other object: what a robot sees); ``"surface"`` takes every object's complete surface sample
     (``ObjectModel.surface_points``) in its current pose, with no camera — an idealised observation for ablations
-    and curricula.
+    and curricula. ``renderer``, for ``"cameras"``: ``"pybullet"`` rasterises the meshes (:class:`PointCloudRenderer`,
+    cropped to ``max_crop_pixels``); ``"splat"`` splats dense surface samples into z-buffers
+    (:class:`~.splatting.SplatRenderer` at its default sizes, as the pseudo-task stream renders).
     """
 
     cameras: list[CameraConfig] = field(default_factory=default_cameras)
     max_crop_pixels: int = 80
     gripper_occludes: bool = True
     cloud: str = "cameras"
+    renderer: str = "pybullet"
 
     def __post_init__(self):
         if self.cloud not in CLOUD_SOURCES:
             raise ValueError(f"cloud must be one of {list(CLOUD_SOURCES)}, got {self.cloud!r}")
+        if self.renderer not in RENDERERS:
+            raise ValueError(f"render.renderer must be one of {list(RENDERERS)}, got {self.renderer!r}")
+        if self.renderer == "splat" and self.cloud != "cameras":
+            raise ValueError(f"render.renderer 'splat' renders the cameras' views; it needs render.cloud 'cameras', "
+                             f"got {self.cloud!r}")
 
 
 class PointCloudRenderer:

@@ -26,7 +26,9 @@ The maths, for a batch of ``B`` scenes, each with ``O`` objects of ``S`` surface
 5. **Resample.** The visible points of each scene are reduced to ``P`` by farthest-point sampling
    (:func:`~..geometry.masked_fps.masked_farthest_point_sampling`), or repeated in FPS order when fewer. The start
    is the visible point with the smallest key in a permutation of ``0 … N−1`` drawn from ``seed``, so a result
-   depends only on the scene and the seed, never on the other scenes of the batch.
+   depends only on the scene and the seed, never on the other scenes of the batch. On the host,
+   :func:`resample_visible` reduces the output of :meth:`SplatRenderer.visible` as the dataset path reduces
+   pybullet's clouds instead (bucket FPS, :func:`~..geometry.sampling.resample_indices`).
 
 Sizes: a z-buffer pixel and the sample spacing must match — a pixel much smaller than the spacing lets back faces
 leak through, a much larger one erodes silhouettes. The defaults (``DEFAULT_SURFACE_SAMPLES`` points per object,
@@ -46,6 +48,7 @@ import torch
 import trimesh
 
 from ..geometry.masked_fps import masked_farthest_point_sampling
+from ..geometry.sampling import resample_indices
 from .library import ObjectModel, load_object
 from .rendering import CameraConfig, camera_projection_matrix, camera_view_matrix, default_cameras
 
@@ -327,6 +330,28 @@ class SplatRenderer:
         return object_points, T_world_objects, T_world_ee, gripper_open
 
 
+def resample_visible(
+    visible: np.ndarray, points_world: np.ndarray, num_points: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Each scene's visible samples reduced to ``num_points`` on the host, as the dataset path reduces pybullet's
+    clouds (:func:`~..geometry.sampling.resample_indices`, bucket FPS; its draws from ``rng``, scene after scene).
+
+    Args:
+        visible: ``(B, N)`` bool, :meth:`SplatRenderer.visible`'s second output; every scene must see a sample.
+        points_world: ``(B, N, 3)`` the posed samples (world frame), its first output.
+
+    Returns:
+        ``(B, num_points)`` int64 indices into ``N`` (object ``index // S`` for ``S`` samples per object).
+    """
+    if not visible.any(axis=1).all():
+        raise ValueError("every scene needs a visible sample to resample")
+    chosen = np.empty((len(visible), num_points), dtype=np.int64)
+    for scene, (seen, posed) in enumerate(zip(visible, points_world, strict=True)):
+        indices = np.flatnonzero(seen)
+        chosen[scene] = indices[resample_indices(posed[indices], num_points, rng)]
+    return chosen
+
+
 def _as_tensor(value, name: str, device: torch.device) -> torch.Tensor:
     tensor = torch.as_tensor(value, device=device)
     if not (tensor.is_floating_point()):
@@ -363,5 +388,6 @@ __all__ = [
     "gripper_surface_samples",
     "library_surface_samples",
     "object_surface_samples",
+    "resample_visible",
 ]
 

@@ -9,7 +9,10 @@ tested), but with the shards' data files rewritten by the rendering pool's proce
 so the merge scales with cores like the rendering. Every task is planned from its own random stream
 ``(seed, task index)`` (:func:`plan_task`, shared with the pseudo-task stream), and each demonstration's clouds are
 resampled from a stream of their own ``(seed, task index, 3, demonstration)``, so the dataset does not depend on the
-number of workers and rendering never changes what is planned.
+number of workers and rendering never changes what is planned. ``render.renderer`` picks what renders the clouds:
+pybullet (the default) or the pseudo-task stream's z-buffer splatting, on the CPU, every frame of a demonstration
+batched and resampled as the stream resamples on the CPU; for a config the two give the same demonstrations (states,
+actions, object poses, records), only their clouds differ.
 
 ``family`` picks the pseudo-task family, from ``reach`` to the paper's ``full`` (``pseudo_tasks.FAMILIES``). With
 ``tasks_per_object_group`` G > 1, consecutive groups of G tasks share their two objects (drawn from the stream
@@ -19,6 +22,7 @@ demonstrations tell them apart.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
 import shutil
@@ -31,8 +35,18 @@ import numpy as np
 from ..data.lerobot_format import DEFAULT_FPS, create_dataset, write_episode
 from ..objects.library import ObjectModel, load_object, object_ids, validate_object_id
 from ..objects.rendering import CameraConfig, PointCloudRenderer, RenderConfig
+from ..objects.splatting import DEFAULT_SURFACE_SAMPLES, SplatConfig, SplatRenderer
 from .merge import merge_parallel
-from .replay import DemoConfig, DemoPlan, GenerationError, PseudoDemo, hold_signature, plan_demo, render_demo
+from .replay import (
+    DemoConfig,
+    DemoPlan,
+    GenerationError,
+    PseudoDemo,
+    hold_signature,
+    plan_demo,
+    render_demo,
+    splat_demo,
+)
 from .tasks import FAMILIES, PseudoTask, sample_pseudo_task
 
 SHARDS_DIR = ".shards"
@@ -98,6 +112,8 @@ class GenerationConfig:
             plan.pop(key)
         if plan["demo"]["layout_shift"] == 1.0:  # the paper's draw, as before the setting existed: old plans still match
             plan["demo"].pop("layout_shift")
+        if plan["render"]["renderer"] == "pybullet":  # likewise the renderer
+            plan["render"].pop("renderer")
         return json.loads(json.dumps(plan))
 
 
@@ -168,19 +184,35 @@ def plan_task(
     raise GenerationError(f"task {task_index}: {max_task_attempts} draws failed; last: {errors[-1]}")
 
 
+def open_renderer(render: RenderConfig) -> contextlib.AbstractContextManager[PointCloudRenderer | SplatRenderer]:
+    """The renderer ``render.renderer`` names, as a context manager: a :class:`PointCloudRenderer` (closed on exit)
+    or a CPU :class:`SplatRenderer` of ``render``'s cameras and gripper at the default splatting sizes."""
+    if render.renderer == "splat":
+        config = SplatConfig(cameras=render.cameras, gripper_occludes=render.gripper_occludes)
+        return contextlib.nullcontext(SplatRenderer(config))
+    return PointCloudRenderer(render)
+
+
 def generate_task(
-    config: GenerationConfig, task_index: int, renderer: PointCloudRenderer, max_task_attempts: int = 10
+    config: GenerationConfig,
+    task_index: int,
+    renderer: PointCloudRenderer | SplatRenderer,
+    max_task_attempts: int = 10,
 ) -> tuple[PseudoTask, list[PseudoDemo]]:
     """Plan task ``task_index`` of ``config`` (:func:`plan_task`) and render its ``demos_per_task`` demonstrations
-    with ``renderer``, demonstration ``d``'s clouds resampled from the stream ``(seed, task index, 3, d)``."""
+    with ``renderer`` (pybullet's :func:`~.replay.render_demo`, or :func:`~.replay.splat_demo` from
+    ``DEFAULT_SURFACE_SAMPLES`` per object), demonstration ``d``'s clouds resampled from the stream
+    ``(seed, task index, 3, d)``."""
     planned = plan_task(config, task_index, max_task_attempts=max_task_attempts)
-    demos = [
-        render_demo(
-            planned.task, planned.objects, plan, renderer,
-            np.random.default_rng([config.seed, task_index, 3, demo_index]), config.demo.num_points,
-        )
-        for demo_index, plan in enumerate(planned.demos)
-    ]
+    demos = []
+    for demo_index, plan in enumerate(planned.demos):
+        rng = np.random.default_rng([config.seed, task_index, 3, demo_index])
+        if isinstance(renderer, SplatRenderer):
+            demos.append(splat_demo(
+                planned.task, planned.objects, plan, renderer, rng, config.demo.num_points, DEFAULT_SURFACE_SAMPLES
+            ))
+        else:
+            demos.append(render_demo(planned.task, planned.objects, plan, renderer, rng, config.demo.num_points))
     return planned.task, demos
 
 
@@ -240,7 +272,7 @@ def generate_shard(config: GenerationConfig, shard_index: int, tasks: range, on_
         shutil.rmtree(partial)
     dataset = create_dataset(shard_repo_id(config, shard_index), partial, config.fps, config.demo.num_points)
     task_records, demo_records = [], []
-    with PointCloudRenderer(config.render) as renderer:
+    with open_renderer(config.render) as renderer:
         for task_index in tasks:
             task, demos = generate_task(config, task_index, renderer)
             for demo in demos:

@@ -4,8 +4,8 @@ Each demonstration puts the task's two objects at new poses and the gripper at a
 gripper through the task's waypoints (fixed in the objects' initial frames), attaches the nearest object
 within reach when the gripper closes and releases it when it opens. :func:`plan_demo` does all of that and every
 check of a scene, rendering nothing (a :class:`DemoPlan`); :func:`render_demo` then renders a segmented cloud per
-frame with pybullet. The pseudo-task stream (``stream.py``) renders the same plans by splatting, only at the frames
-it needs.
+frame with pybullet, or :func:`splat_demo` by z-buffer splatting (``objects/splatting.py``). The pseudo-task stream
+(``stream.py``) splats the same plans with the same inputs (:func:`splat_inputs`), only at the frames it needs.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 from scipy.spatial.transform import Rotation
 
 from ..contract import vectors_from_poses
@@ -21,6 +22,7 @@ from ..geometry.sampling import resample_indices
 from ..geometry.se3 import invert, look_rotation, make_pose, transform_points
 from ..objects.library import ObjectModel
 from ..objects.rendering import CameraConfig, PointCloudRenderer, camera_projection_matrix, camera_view_matrix
+from ..objects.splatting import SplatRenderer, library_surface_samples, resample_visible
 from .tasks import GRASP_REACH, PseudoTask, Waypoint
 from .trajectory import (
     Step,
@@ -330,10 +332,58 @@ def render_demo(
         chosen = resample_indices(cloud, num_points, rng)
         points[index] = cloud[chosen]
         labels[index] = cloud_labels[chosen]
-    return PseudoDemo(
-        task, plan.layout, points, labels, plan.state, plan.action, plan.T_world_objects, plan.held_object,
-        list(plan.waypoint_frames),
-    )
+    return _rendered(task, plan, points, labels)
+
+
+def splat_inputs(
+    objects: list[ObjectModel], scenes: Sequence[tuple[DemoPlan, int]], surface_samples: int
+) -> dict[str, torch.Tensor]:
+    """The :meth:`~..objects.splatting.SplatRenderer.visible` keyword arguments that splat ``B`` scenes of one task,
+    each a planned demonstration of it and a frame index: ``object_points`` and ``object_normals`` ``(B, O, S, 3)``
+    (the library's ``S = surface_samples`` per object, object frames), ``T_world_objects (B, O, 4, 4)``,
+    ``T_world_ee (B, 4, 4)`` (the observed EE poses) float32 and ``gripper_open (B,)`` bool (the observed gripper)."""
+    samples = [library_surface_samples(model.object_id, surface_samples) for model in objects]
+    return {
+        "object_points": torch.stack([points for points, _ in samples]).expand(len(scenes), -1, -1, -1),
+        "object_normals": torch.stack([normals for _, normals in samples]).expand(len(scenes), -1, -1, -1),
+        "T_world_objects": torch.as_tensor(
+            np.stack([plan.T_world_objects[frame] for plan, frame in scenes]), dtype=torch.float32
+        ),
+        "T_world_ee": torch.as_tensor(np.stack([plan.steps[frame].T_world_ee for plan, frame in scenes]),
+                                      dtype=torch.float32),
+        "gripper_open": torch.as_tensor(np.array([plan.steps[frame].gripper_open for plan, frame in scenes])),
+    }
+
+
+def splat_demo(
+    task: PseudoTask,
+    objects: list[ObjectModel],
+    plan: DemoPlan,
+    renderer: SplatRenderer,
+    rng: np.random.Generator,
+    num_points: int,
+    surface_samples: int,
+    frames_per_call: int = 32,
+) -> PseudoDemo:
+    """:func:`render_demo` by z-buffer splatting: every frame of ``plan`` splatted by ``renderer`` from
+    ``surface_samples`` per object (:func:`splat_inputs`), ``frames_per_call`` frames per call (a batch's result is
+    the same as each frame's alone; memory grows with it, a few hundred bytes per sample and camera), and each
+    cloud reduced to ``num_points`` on the host as the stream does on the CPU
+    (:func:`~..objects.splatting.resample_visible`, whose draws come from ``rng``, frame after frame). Labels are
+    the object index of each point. A frame no camera sees any object sample of raises ``GenerationError``."""
+    points = np.zeros((plan.num_frames, num_points, 3), dtype=np.float32)
+    labels = np.zeros((plan.num_frames, num_points), dtype=np.int8)
+    for start in range(0, plan.num_frames, frames_per_call):
+        frames = range(start, min(start + frames_per_call, plan.num_frames))
+        posed, visible = renderer.visible(**splat_inputs(objects, [(plan, frame) for frame in frames], surface_samples))
+        posed, visible = posed.cpu().numpy(), visible.cpu().numpy()
+        empty = np.flatnonzero(~visible.any(axis=1))
+        if len(empty):
+            raise GenerationError(f"task {task.task_id}: frame {frames[empty[0]]} rendered no object point")
+        chosen = resample_visible(visible, posed, num_points, rng)
+        points[frames.start:frames.stop] = np.take_along_axis(posed, chosen[..., None], axis=1)
+        labels[frames.start:frames.stop] = chosen // surface_samples
+    return _rendered(task, plan, points, labels)
 
 
 def frames_in_view(
@@ -356,6 +406,14 @@ def frames_in_view(
         inside = (depth > near) & (depth < far) & (np.abs(clip[..., 0]) <= depth) & (np.abs(clip[..., 1]) <= depth)
         seen |= inside.any(axis=(1, 2))[inverse.reshape(-1)]
     return seen
+
+
+def _rendered(task: PseudoTask, plan: DemoPlan, points: np.ndarray, labels: np.ndarray) -> PseudoDemo:
+    """``plan`` with its clouds ``points (F, P, 3)`` and their object labels ``labels (F, P)``."""
+    return PseudoDemo(
+        task, plan.layout, points, labels, plan.state, plan.action, plan.T_world_objects, plan.held_object,
+        list(plan.waypoint_frames),
+    )
 
 
 def _lowest_point(objects: list[ObjectModel], T_world_objects: np.ndarray) -> float:

@@ -4,7 +4,8 @@ Task ``i`` is planned by :func:`~.generation.plan_task`, the code ``lerobot-ip-g
 from the random stream ``(seed, i)`` of the generation config: its objects, its waypoints and ``N + 1``
 demonstrations (layouts, disturbances, gripper faults, tracked object poses), of which the first ``N`` are the
 context and the last is the live one. For the same config and task index the stream and a generated dataset
-therefore hold the same demonstrations; only the renderer differs. Only the frames a sample needs are rendered:
+therefore hold the same demonstrations; only the renderer differs (``lerobot-ip-generate --renderer splat`` splats
+every frame of them as this stream does). Only the frames a sample needs are rendered:
 each context demonstration's ``L`` waypoints (:func:`~..data.context_bank.waypoint_frames`, as the context bank
 reduces a dataset's episodes) and ``samples_per_task`` live frames drawn uniformly from the stream
 ``(seed, i, 4)``. The visible surface samples of ``tasks_per_render`` tasks come from one
@@ -56,10 +57,9 @@ from ..contract import (
 )
 from ..data.context_bank import waypoint_frames
 from ..data.demonstrations import DemonstrationError
-from ..geometry.sampling import resample_indices
-from ..objects.splatting import DEFAULT_SURFACE_SAMPLES, SplatConfig, SplatRenderer, library_surface_samples
+from ..objects.splatting import DEFAULT_SURFACE_SAMPLES, SplatConfig, SplatRenderer, resample_visible
 from .generation import GenerationConfig, PlannedTask, plan_task
-from .replay import GenerationError
+from .replay import GenerationError, splat_inputs
 
 _LIVE_STREAM = 4  # the live frames of task i are drawn from the random stream (seed, i, 4)
 _RESAMPLE_STREAM = 5  # and its clouds resampled ("fpsample") from (seed, i, 5)
@@ -258,49 +258,31 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
         one of them shows no object point."""
         if self._renderer is None:
             self._renderer = SplatRenderer(self.config.splat_config(), self.device)
-        points, normals, T_world_objects, T_world_ee, gripper_open, counts = [], [], [], [], [], []
+        per_task = []
         for frames in tasks:
-            planned = frames.planned
-            samples = [
-                library_surface_samples(model.object_id, self.config.surface_samples) for model in planned.objects
-            ]
-            scenes = [(demo, frame) for demo, row in zip(planned.demos, frames.chosen) for frame in row]
-            scenes += [(planned.demos[-1], frame) for frame in frames.live]
-            points.append(torch.stack([sample[0] for sample in samples]).expand(len(scenes), -1, -1, -1))
-            normals.append(torch.stack([sample[1] for sample in samples]).expand(len(scenes), -1, -1, -1))
-            T_world_objects.append(np.stack([demo.T_world_objects[frame] for demo, frame in scenes]))
-            T_world_ee.append(np.stack([demo.steps[frame].T_world_ee for demo, frame in scenes]))
-            gripper_open.append(np.array([demo.steps[frame].gripper_open for demo, frame in scenes]))
-            counts.append(len(scenes))
-        inputs = (
-            torch.cat(points),
-            torch.as_tensor(np.concatenate(T_world_objects), dtype=torch.float32),
-            torch.as_tensor(np.concatenate(T_world_ee), dtype=torch.float32),
-            torch.as_tensor(np.concatenate(gripper_open)),
-        )
-        bounds = np.cumsum([0, *counts])
+            demos = frames.planned.demos
+            scenes = [(demo, frame) for demo, row in zip(demos, frames.chosen) for frame in row]
+            scenes += [(demos[-1], frame) for frame in frames.live]
+            per_task.append(splat_inputs(frames.planned.objects, scenes, self.config.surface_samples))
+        inputs = {key: torch.cat([task_inputs[key] for task_inputs in per_task]) for key in per_task[0]}
+        bounds = np.cumsum([0, *(len(task_inputs["T_world_ee"]) for task_inputs in per_task)])
         if self.resampling == "masked_fps":
-            cloud = self._renderer.render(
-                *inputs, num_points=self.config.num_points, seed=self.config.generation.seed,
-                object_normals=torch.cat(normals),
-            )
+            cloud = self._renderer.render(**inputs, num_points=self.config.num_points, seed=self.config.generation.seed)
             return [
                 None if bool((cloud.num_visible[start:stop] == 0).any()) else cloud.points_world[start:stop]
                 for start, stop in zip(bounds[:-1], bounds[1:])
             ]
-        posed, visible = self._renderer.visible(*inputs, object_normals=torch.cat(normals))
+        posed, visible = self._renderer.visible(**inputs)
         posed, visible = posed.cpu().numpy(), visible.cpu().numpy()
         clouds = []
         for frames, start, stop in zip(tasks, bounds[:-1], bounds[1:]):
+            if not visible[start:stop].any(axis=1).all():
+                clouds.append(None)
+                continue
             rng = np.random.default_rng([self.config.generation.seed, frames.planned.task_index, _RESAMPLE_STREAM])
-            task_clouds = []
-            for scene in range(start, stop):
-                seen = posed[scene][visible[scene]]
-                if len(seen) == 0:
-                    task_clouds = None
-                    break
-                task_clouds.append(seen[resample_indices(seen, self.config.num_points, rng)])
-            clouds.append(None if task_clouds is None else torch.as_tensor(np.stack(task_clouds), device=self.device))
+            chosen = resample_visible(visible[start:stop], posed[start:stop], self.config.num_points, rng)
+            clouds.append(torch.as_tensor(np.take_along_axis(posed[start:stop], chosen[..., None], axis=1),
+                                          device=self.device))
         return clouds
 
     def _task_samples(self, frames: _TaskFrames, clouds: torch.Tensor) -> list[dict[str, torch.Tensor]]:

@@ -10,12 +10,14 @@ import torch
 from scipy.spatial import cKDTree
 
 from lerobot_instant_policy.geometry.masked_fps import masked_farthest_point_sampling
+from lerobot_instant_policy.geometry.sampling import resample_indices
 from lerobot_instant_policy.objects.library import ObjectModel, load_object
 from lerobot_instant_policy.objects.rendering import PointCloudRenderer, RenderConfig, default_cameras
 from lerobot_instant_policy.objects.splatting import (
     SplatRenderer,
     gripper_surface_samples,
     object_surface_samples,
+    resample_visible,
 )
 
 DEVICES = [
@@ -297,3 +299,21 @@ def test_bad_inputs_raise_a_clear_value_error():
         renderer.render(points, poses, object_normals=points * float("nan"))
     with pytest.raises(ValueError, match="num_points"):
         renderer.render(points, poses, num_points=0)
+
+
+def test_host_resampling_is_the_dataset_paths_on_each_scenes_visible_points():
+    """``resample_visible``: per scene, ``resample_indices`` of its visible points from one stream, as indices into
+    all samples; a scene with nothing visible is refused."""
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(3, 500, 3)).astype(np.float32)
+    visible = rng.random((3, 500)) < np.array([[0.9], [0.5], [0.05]])  # 450, 250 and 25 points for 64
+    chosen = resample_visible(visible, points, 64, np.random.default_rng(5))
+    reference = np.random.default_rng(5)
+    assert chosen.shape == (3, 64) and chosen.dtype == np.int64
+    for scene in range(3):
+        assert visible[scene, chosen[scene]].all()
+        seen = points[scene][visible[scene]]
+        np.testing.assert_array_equal(points[scene, chosen[scene]], seen[resample_indices(seen, 64, reference)])
+    visible[1] = False
+    with pytest.raises(ValueError, match="every scene needs a visible sample"):
+        resample_visible(visible, points, 64, np.random.default_rng(5))

@@ -416,3 +416,50 @@ def test_waypoint_roll_flag_reaches_the_written_tasks(tmp_path):
 
     assert config_from_args(build_parser().parse_args(["--waypoint-max-roll-deg", "30"])).plan()[
         "waypoint_max_roll_deg"] == 30.0
+
+
+def test_splat_rendering_writes_the_pybullet_datasets_demonstrations(tmp_path, capsys, single_torch_thread):
+    """``--renderer splat``: the same config writes the same demonstrations (states, actions, task and scene records)
+    as with pybullet; only the clouds differ, each of 2048 finite points within a few mm of pybullet's. The plan
+    records the renderer, so a resume with the other one is refused."""
+    arguments = ["--num-tasks", "1", "--demos-per-task", "2", "--seed", "3"]
+    pybullet, splat = tmp_path / "pybullet", tmp_path / "splat"
+    assert _generate(pybullet, *arguments) == 0
+    assert _generate(splat, *arguments, "--renderer", "splat") == 0
+    left, right = _table(pybullet), _table(splat)
+    for column in ("observation.state", "action", "task_index", "episode_index"):
+        np.testing.assert_array_equal(left[column], right[column])
+    for name in ("pseudo_tasks.jsonl", "pseudo_demos.jsonl"):
+        assert (splat / "meta" / name).read_text() == (pybullet / "meta" / name).read_text()
+    clouds = right["observation.pointcloud"]
+    assert clouds.shape == left["observation.pointcloud"].shape and clouds.shape[1:] == (2048, 3)
+    assert clouds.dtype == np.float32 and np.isfinite(clouds).all()
+    assert not np.array_equal(clouds, left["observation.pointcloud"])
+    for frame in range(0, len(clouds), 25):
+        splat_to_pybullet = cKDTree(left["observation.pointcloud"][frame]).query(clouds[frame])[0].mean()
+        assert splat_to_pybullet < 0.006, f"frame {frame}: {splat_to_pybullet * 1e3:.1f} mm from pybullet's cloud"
+
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+    from lerobot_instant_policy.pseudo_demos.generation import prepare_output
+
+    interrupted = tmp_path / "interrupted"
+    config = config_from_args(build_parser().parse_args(["--out", str(interrupted), "--repo-id", REPO_ID, *arguments]))
+    assert "renderer" not in config.plan()["render"], "plans written before the choice existed must still match"
+    prepare_output(config, overwrite=False, resume=False)
+    assert _generate(interrupted, *arguments, "--renderer", "splat", "--resume") == 2
+    assert "settings differ from the interrupted run in ['render']" in capsys.readouterr().err
+
+
+def test_an_unknown_renderer_is_refused_by_name(tmp_path, capsys):
+    config = tmp_path / "blender.json"
+    config.write_text(json.dumps({"render": {"renderer": "blender"}}))
+    out = tmp_path / "out"
+    assert generate_main(["--config", str(config), "--out", str(out), "--no-progress"]) == 2
+    assert "render.renderer must be one of ['pybullet', 'splat'], got 'blender'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        _generate(out, "--renderer", "blender")
+    assert "invalid choice: 'blender'" in capsys.readouterr().err
+    config.write_text(json.dumps({"render": {"renderer": "splat", "cloud": "surface"}}))
+    assert generate_main(["--config", str(config), "--out", str(out), "--no-progress"]) == 2
+    assert "render.renderer 'splat' renders the cameras' views" in capsys.readouterr().err
+    assert not out.exists()

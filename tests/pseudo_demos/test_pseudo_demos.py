@@ -18,6 +18,7 @@ from lerobot_instant_policy.geometry.se3 import (
 )
 from lerobot_instant_policy.objects.library import is_held_out, load_object
 from lerobot_instant_policy.objects.rendering import PointCloudRenderer, RenderConfig, default_cameras
+from lerobot_instant_policy.objects.splatting import SplatConfig, SplatRenderer
 from lerobot_instant_policy.pseudo_demos.replay import (
     DemoConfig,
     GenerationError,
@@ -27,6 +28,7 @@ from lerobot_instant_policy.pseudo_demos.replay import (
     render_demo,
     sample_layout,
     shift_layout,
+    splat_demo,
 )
 from lerobot_instant_policy.pseudo_demos.tasks import (
     FAMILIES,
@@ -477,6 +479,27 @@ def test_rendering_keeps_the_plan_and_draws_from_its_own_stream(pick_task, objec
             np.testing.assert_array_equal(getattr(demo, name), getattr(plan, name), err_msg=name)
         assert demo.points.shape == (plan.num_frames, 512, 3)
     assert not np.array_equal(first.points, second.points)
+
+
+def test_splatting_keeps_the_plan_whatever_the_frames_per_call(pick_task, objects, single_torch_thread):
+    """A planned demonstration splatted (coarse sizes) 7 or 64 frames per call: the same clouds and labels, the plan
+    kept, every point on the object its label names."""
+    plan = plan_demo(pick_task, objects, np.random.default_rng(300), DemoConfig(), default_cameras())
+    renderer = SplatRenderer(SplatConfig(zbuffer_resolution=(160, 120)))
+    first, second = (
+        splat_demo(pick_task, objects, plan, renderer, np.random.default_rng(1), 256, 1024, frames_per_call)
+        for frames_per_call in (7, 64)
+    )
+    np.testing.assert_array_equal(first.points, second.points)
+    np.testing.assert_array_equal(first.point_labels, second.point_labels)
+    for name in ("state", "action", "T_world_objects", "held_object", "waypoint_frames"):
+        np.testing.assert_array_equal(getattr(first, name), getattr(plan, name), err_msg=name)
+    assert first.points.shape == (plan.num_frames, 256, 3) and first.point_labels.shape == (plan.num_frames, 256)
+    for frame in range(0, plan.num_frames, 10):
+        distances = _surface_distances(first.points[frame], first.point_labels[frame], objects,
+                                       plan.T_world_objects[frame])
+        # the points are exact surface samples; the distance is to the reference's own ≈ 0.5 mm spaced samples
+        assert distances.max() < 2e-3, f"frame {frame}: a point {distances.max() * 1e3:.2f} mm off its object"
 
 
 def test_a_shared_object_layout_survives_scene_retries(pick_task, objects, renderer):
