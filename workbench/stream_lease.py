@@ -210,17 +210,66 @@ def accept(folder: Path, name: str | None = None, committed: Path = COMMITTED, c
     lease = json.loads((folder / LEASE_FILE).read_text())
     previous = accepted_leases(committed)
     kept = beats(lease, previous[-1] if previous else None)
-    point = {"samples_total": lease["samples_total"], "tasks_total": lease["tasks_total"],
-             "hidden_dim": lease["hidden_dim"], "device": lease["device"], "kept": kept,
-             "val_tasks": lease["config"]["val_tasks"], "val_frames_per_task": lease["config"]["val_frames_per_task"],
-             **{f"{set_name}_{key}": value for set_name, result in lease["validation"].items()
-                for key, value in result["checkpoint"].items()}}
-    curve = json.loads(curve_file.read_text()) if curve_file.is_file() else {"points": []}
-    curve["points"].append(point)
-    curve_file.write_text(json.dumps(curve, indent=2))
+    point = curve_point(lease["samples_total"], lease["tasks_total"], lease["hidden_dim"], lease["device"],
+                        {name: result["checkpoint"] for name, result in lease["validation"].items()},
+                        lease["config"]["val_tasks"], lease["config"]["val_frames_per_task"], kept,
+                        f"lease from {lease['start']}, seed {lease['seed']}")
+    add_curve_point(point, curve_file)
     if kept:
         target = committed / (name or f"lease_{len(previous):03d}")
         target.mkdir(parents=True, exist_ok=False)
         for file in folder.iterdir():
             shutil.copy2(file, target / file.name)
     return {"kept": kept, "point": point}
+
+
+def curve_point(samples_total: int, tasks_total: int, hidden_dim: int, device: str, validation: dict,
+                val_tasks: int, val_frames_per_task: int, kept: bool, source: str) -> dict:
+    """One point of the scaling curve: what was seen (samples and distinct tasks, every lease so far), the width and
+    where it trained, and the checkpoint's figures on each validation set (``validation``: set → :func:`figures`)."""
+    return {"samples_total": samples_total, "tasks_total": tasks_total, "hidden_dim": hidden_dim, "device": device,
+            "kept": kept, "val_tasks": val_tasks, "val_frames_per_task": val_frames_per_task, "source": source,
+            **{f"{name}_{key}": value for name, result in validation.items() for key, value in result.items()}}
+
+
+def add_curve_point(point: dict, curve_file: Path = CURVE_FILE) -> None:
+    """Append ``point`` to the curve's JSON and redraw its picture beside it (``.png``)."""
+    curve = json.loads(curve_file.read_text()) if curve_file.is_file() else {"points": []}
+    curve["points"].append(point)
+    curve_file.write_text(json.dumps(curve, indent=2))
+    plot_curve(curve["points"], curve_file.with_suffix(".png"))
+
+
+def plot_curve(points: list[dict], png: Path) -> None:
+    """Error against holding still and context gain on both validation sets, against samples seen (log axis), one
+    marker per device and width (CPU points hollow)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for axis, key, label in ((axes[0], "vs_holding_still", "translation error / holding still (lower is better)"),
+                             (axes[1], "context_gain", "context gain (swap error / own error; higher is better)")):
+        for name, color in (("moved", "tab:red"), ("one_layout", "tab:blue")):
+            for (device, width), group in _groups(points).items():
+                chosen = sorted((point["samples_total"], point[f"{name}_{key}"]) for point in group)
+                axis.plot([max(x, 1) for x, _ in chosen], [y for _, y in chosen], "-o", color=color,
+                          markerfacecolor="none" if device == "cpu" else color,
+                          label=f"{name.replace('_', ' ')}, {device}, hidden {width}")
+        axis.set_xscale("log")
+        axis.set_xlabel("training samples seen on the stream (log)")
+        axis.set_ylabel(label)
+        axis.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    figure.suptitle("instant_policy on the pseudo-task stream: held-out pseudo-tasks, held-out objects")
+    figure.tight_layout()
+    figure.savefig(png, dpi=120)
+    plt.close(figure)
+
+
+def _groups(points: list[dict]) -> dict[tuple[str, int], list[dict]]:
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for point in points:
+        groups.setdefault((point["device"], point["hidden_dim"]), []).append(point)
+    return groups

@@ -19,7 +19,8 @@ def _lease(moved: float, one_layout: float, start: tuple[float, float] = (0.9, 0
                 "start": {"translation_mm": 30 * start_value, "hold_translation_mm": 30.0,
                           "vs_holding_still": start_value, "context_gain": 1.3}}
 
-    return {"samples_total": samples, "tasks_total": samples, "hidden_dim": 128, "device": "cpu",
+    return {"samples_total": samples, "tasks_total": samples, "hidden_dim": 128, "device": "cpu", "start": "shipped",
+            "seed": 1000,
             "config": {"val_tasks": 24, "val_frames_per_task": 4},
             "validation": {"moved": result(moved, start[0]), "one_layout": result(one_layout, start[1])}}
 
@@ -46,6 +47,7 @@ def test_a_lease_is_kept_only_when_it_beats_the_last_kept_one_on_both_sets_and_e
     assert [point["kept"] for point in points] == [False, True, False]
     assert points[1]["moved_vs_holding_still"] == 0.85 and points[1]["val_tasks"] == 24
     assert len(accepted_leases(committed)) == 1
+    assert curve.with_suffix(".png").stat().st_size > 10_000  # the picture is redrawn beside the JSON
 
 
 def test_a_lease_starts_from_the_shipped_checkpoint_or_the_one_asked_for(tmp_path):
