@@ -249,8 +249,8 @@ def plot_curve(points: list[dict], png: Path) -> None:
     import matplotlib.pyplot as plt
 
     figure, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for axis, key, label in ((axes[0], "vs_holding_still", "translation error / holding still (lower is better)"),
-                             (axes[1], "context_gain", "context gain (swap error / own error; higher is better)")):
+    for axis, key, label in ((axes[0], "vs_holding_still", "error / holding still (lower is better)"),
+                             (axes[1], "context_gain", "context gain, swap / own error (higher is better)")):
         for name, color in (("moved", "tab:red"), ("one_layout", "tab:blue")):
             for (device, width), group in _groups(points).items():
                 chosen = sorted((point["samples_total"], point[f"{name}_{key}"]) for point in group)
@@ -258,7 +258,7 @@ def plot_curve(points: list[dict], png: Path) -> None:
                           markerfacecolor="none" if device == "cpu" else color,
                           label=f"{name.replace('_', ' ')}, {device}, hidden {width}")
         axis.set_xscale("log")
-        axis.set_xlabel("training samples seen on the stream (log)")
+        axis.set_xlabel("samples seen on the stream (log; 0 drawn at 1)")
         axis.set_ylabel(label)
         axis.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
