@@ -261,7 +261,8 @@ def test_a_policy_that_predicted_can_still_train(tiny_dataset, dense):
     assert all(torch.isfinite(p.grad).all() for p in policy.get_optim_params() if p.grad is not None)
 
 
-@pytest.mark.parametrize("action_scene_graph", [True, False])
+# CI: the shipped graph; the paper's (about 30 s of compiling more) with the slow tests
+@pytest.mark.parametrize("action_scene_graph", [pytest.param(True, marks=pytest.mark.slow), False])
 def test_compiled_training_step_gives_the_eager_loss_and_gradients(tiny_dataset, action_scene_graph):
     """``--policy.compile_model``: σ, φ and ψ through ``torch.compile`` in the training step give the eager step's
     loss and gradients (the same weights and random draws), in the paper's graph and the shipped one; sampling runs
