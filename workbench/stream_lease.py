@@ -181,8 +181,8 @@ def run(config: LeaseConfig) -> dict:
     tasks = -(-samples // config.samples_per_task)
     lease = {
         "start": str(start), "seed": seed, "steps": steps, "samples": samples, "tasks": tasks,
-        "samples_total": samples + sum(item["samples_total"] for item in previous[-1:]),
-        "tasks_total": tasks + sum(item["tasks_total"] for item in previous[-1:]),
+        "samples_total": samples + (previous[-1]["samples_total"] if previous else 0),
+        "tasks_total": tasks + (previous[-1]["tasks_total"] if previous else 0),
         "first_step_s": first_step_s, "trained_s": trained_s, "total_s": time.monotonic() - started,
         "validation": results, "config": asdict(config),
         "device": config.device, "hidden_dim": json.loads((checkpoint / "config.json").read_text())["hidden_dim"],

@@ -29,17 +29,16 @@ def _batches(stream: PseudoTaskStream, batch_size: int):
     return iter(loader)
 
 
-def _timed_batches(batches, count: int, device: torch.device) -> tuple[list[float], list]:
-    """Seconds per batch of ``count`` batches (after one warm-up batch), and the batches."""
+def _timed_batches(batches, count: int, device: torch.device) -> list[float]:
+    """Seconds per batch of ``count`` batches (after one warm-up batch)."""
     next(batches)
-    times, kept = [], []
+    times = []
     for _ in range(count):
         start = time.perf_counter()
-        batch = next(batches)
+        next(batches)
         _synchronize(device)
         times.append(time.perf_counter() - start)
-        kept.append(batch)
-    return times, kept
+    return times
 
 
 def stream_benchmark(stream_config: StreamConfig, presets: tuple[str, ...] = ("small",), batch_size: int = 8,
@@ -51,7 +50,7 @@ def stream_benchmark(stream_config: StreamConfig, presets: tuple[str, ...] = ("s
               "samples_per_task": stream_config.samples_per_task, "torch_threads": torch.get_num_threads(),
               "stream": _stream_summary(stream_config), "presets": {}}
     alone_config = stream_config_for(InstantPolicyConfig(preset=presets[0], device=str(device)), stream_config)
-    times, _ = _timed_batches(_batches(PseudoTaskStream(alone_config, device=device), batch_size), batches, device)
+    times = _timed_batches(_batches(PseudoTaskStream(alone_config, device=device), batch_size), batches, device)
     median = statistics.median(times)
     result["stream_alone"] = {"batch_s": median, "samples_per_s": batch_size / median,
                               "tasks_per_s": batch_size / median / stream_config.samples_per_task,
