@@ -23,6 +23,8 @@ from pathlib import Path
 
 from scipy.stats import binomtest
 
+from .metaworld_suite import SWAP_GROUPS as MT10_KINDS
+
 EVAL_INFO = "eval_info.json"
 DEFAULT_ENV_TYPE = "bullet_tabletop"
 CONFIDENCE = 0.95
@@ -35,11 +37,13 @@ TASK_GROUPS: dict[str, tuple[str, ...]] = {
     "articulated": ("open_drawer", "close_drawer", "open_box", "close_box"),
     "relative placement (two objects)": ("pick_and_place", "put_in_tray", "stack_blocks", "slide_block"),
 }
+# The rows of a table: the suite's groups, then MetaWorld's MT10 tasks by kind (the swap control's groups).
+TABLE_GROUPS: dict[str, tuple[str, ...]] = {**TASK_GROUPS, **{f"MT10, {kind}": tasks for kind, tasks in MT10_KINDS.items()}}
 
 
 def task_group(task: str) -> str:
-    """The group of ``TASK_GROUPS`` that ``task`` belongs to, else ``OTHER_GROUP``."""
-    return next((group for group, tasks in TASK_GROUPS.items() if task in tasks), OTHER_GROUP)
+    """The group of ``TABLE_GROUPS`` that ``task`` belongs to, else ``OTHER_GROUP``."""
+    return next((group for group, tasks in TABLE_GROUPS.items() if task in tasks), OTHER_GROUP)
 
 
 def wilson_interval(successes: int, episodes: int) -> tuple[float, float]:
@@ -194,15 +198,15 @@ def policy_means(results: list[SuccessCount]) -> dict[str, float]:
 
 
 def grouped_tasks(results: list[SuccessCount]) -> list[tuple[str, list[str]]]:
-    """``(group, tasks)`` in ``TASK_GROUPS`` order (``OTHER_GROUP`` last), the tasks present in ``results`` only."""
+    """``(group, tasks)`` in ``TABLE_GROUPS`` order (``OTHER_GROUP`` last), the tasks present in ``results`` only."""
     present = {result.task for result in results}
-    groups = [(group, [task for task in tasks if task in present]) for group, tasks in TASK_GROUPS.items()]
+    groups = [(group, [task for task in tasks if task in present]) for group, tasks in TABLE_GROUPS.items()]
     others = sorted(task for task in present if task_group(task) == OTHER_GROUP)
     return [(group, tasks) for group, tasks in groups + [(OTHER_GROUP, others)] if tasks]
 
 
 def format_table(results: list[SuccessCount]) -> str:
-    """A text table, one column per policy: each task grouped as ``TASK_GROUPS``, each group pooled, then every
+    """A text table, one column per policy: each task grouped as ``TABLE_GROUPS``, each group pooled, then every
     episode pooled (``overall``); each cell ``successes/episodes rate% [Wilson 95% interval]``."""
     policies = sorted({result.policy for result in results})
     by_key = {(result.task, result.policy): result for result in results}
@@ -237,7 +241,7 @@ def results_json(results: list[SuccessCount]) -> dict:
 
 
 def save_bar_chart(results: list[SuccessCount], path: Path, title: str = "success per task") -> None:
-    """Grouped bars with Wilson 95% error bars: one group of bars per task (in ``TASK_GROUPS`` order), one bar per
+    """Grouped bars with Wilson 95% error bars: one group of bars per task (in ``TABLE_GROUPS`` order), one bar per
     policy, success rate in %, episodes above each bar."""
     import matplotlib
 

@@ -100,6 +100,21 @@ def test_demonstration_sets_of_one_task_pool_under_the_task_name(tmp_path, capsy
     assert (row["task"], row["episodes"], row["successes"]) == ("push_button", 6, 3)
 
 
+def test_metaworld_runs_group_by_mt10_kind(tmp_path, capsys):
+    """MetaWorld runs (task named by its run directory) pool per MT10 kind, the swap control's groups; a task outside
+    MT10 falls in ``other``."""
+    for task, successes in (("door-open-v3", [True, False]), ("drawer-open-v3", [True, True]),
+                            ("reach-v3", [False, False]), ("bin-picking-v3", [True, False])):
+        write_eval_info(tmp_path / "runs" / task / "set-0", "metaworld_pointcloud", successes)
+    assert main(["--unchecked", f"demo_replay={tmp_path / 'runs'}", "--env-type", "metaworld_pointcloud", "--json",
+                 "--out", str(tmp_path / "t")]) == 0
+    groups = {group["group"]: group for group in json.loads(capsys.readouterr().out)["groups"]}
+    assert groups["MT10, open"]["tasks"] == ["door-open-v3", "drawer-open-v3"]
+    assert (groups["MT10, open"]["episodes"], groups["MT10, open"]["successes"]) == (4, 3)
+    assert groups["MT10, reach or move to a place"]["tasks"] == ["reach-v3"]
+    assert groups["other"]["tasks"] == ["bin-picking-v3"]
+
+
 def test_policy_from_lerobot_eval_default_directory_name(tmp_path, capsys):
     write_eval_info(tmp_path / "outputs" / "eval" / "2026-01-01" / "12-00-00_bullet_tabletop_demo_replay", "push_button", [True])
     assert main(["--unchecked", str(tmp_path / "outputs"), "--json", "--out", str(tmp_path / "t")]) == 0
