@@ -34,6 +34,17 @@ CONTEXT_GRIPPER_OPEN_KEY = "observation.context.gripper_open"
 CONTEXT_ID_KEY = "observation.context.id"
 CONTEXT_KEYS = (CONTEXT_POINTCLOUD_KEY, CONTEXT_T_WORLD_EE_KEY, CONTEXT_GRIPPER_OPEN_KEY, CONTEXT_ID_KEY)
 
+# A training batch whose clouds the frozen geometry encoder has already read (the encoded task pool): per row the
+# live frame's M scene nodes in its own EE frame, positions ``(B, M, 3)`` and features ``(B, M, D)``, in place of its
+# cloud, and the context's waypoints likewise, ``(B, N, L, M, 3)`` and ``(B, N, L, M, D)``, in place of theirs,
+# beside the context's poses, gripper states and ids above.
+SCENE_POSITIONS_KEY = "observation.scene_positions"
+SCENE_FEATURES_KEY = "observation.scene_features"
+CONTEXT_SCENE_POSITIONS_KEY = "observation.context.scene_positions"
+CONTEXT_SCENE_FEATURES_KEY = "observation.context.scene_features"
+ENCODED_KEYS = (SCENE_POSITIONS_KEY, SCENE_FEATURES_KEY, CONTEXT_SCENE_POSITIONS_KEY, CONTEXT_SCENE_FEATURES_KEY,
+                CONTEXT_T_WORLD_EE_KEY, CONTEXT_GRIPPER_OPEN_KEY, CONTEXT_ID_KEY)
+
 NUM_POINTS = 2048
 POINTCLOUD_NAMES = ["point", "xyz"]
 POSE_GRIPPER_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]

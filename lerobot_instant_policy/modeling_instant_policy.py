@@ -40,8 +40,13 @@ from .contract import (
     CONTEXT_ID_KEY,
     CONTEXT_KEYS,
     CONTEXT_POINTCLOUD_KEY,
+    CONTEXT_SCENE_FEATURES_KEY,
+    CONTEXT_SCENE_POSITIONS_KEY,
     CONTEXT_T_WORLD_EE_KEY,
+    ENCODED_KEYS,
     POINTCLOUD_KEY,
+    SCENE_FEATURES_KEY,
+    SCENE_POSITIONS_KEY,
     STATE_KEY,
     poses_from_vectors_torch,
     vectors_from_poses_torch,
@@ -143,7 +148,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._episode_step = 0
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
-        """Training loss of a batch from the training dataset or the pseudo-task stream.
+        """Training loss of a batch from the training dataset, the pseudo-task stream or the encoded task pool.
 
         Args:
             batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame, and
@@ -151,8 +156,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 past the episode's end are replaced by its last action, i.e. the EE holds still) or, as
                 ``lerobot-train`` delivers it from a dataset, the row's own ``action (B, 8)`` and ``index (B,)``: the
                 chunk is then read from the training dataset's action table (:meth:`training_action_chunks`). The
-                context: the batch's own (``contract.CONTEXT_KEYS``, the stream's: :meth:`batch_context`), or else
-                ``episode_index (B,)``, whose task's other episodes in the training dataset are drawn.
+                context: the batch's own, as clouds (``contract.CONTEXT_KEYS``, the stream's: :meth:`batch_context`)
+                or already encoded (``contract.ENCODED_KEYS``, the task pool's, whose live frame comes encoded too
+                in place of its cloud: :meth:`encoded_batch_context`), or else ``episode_index (B,)``, whose task's
+                other episodes in the training dataset are drawn.
 
         Returns:
             The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats.
@@ -165,20 +172,27 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
         rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,)).item()))
         device = state.device
-        scene_geometry = None
-        if any(key in batch for key in CONTEXT_KEYS):
+        encoded = CONTEXT_SCENE_FEATURES_KEY in batch
+        carried = encoded or any(key in batch for key in CONTEXT_KEYS)
+        if carried:
             available = batch[CONTEXT_T_WORLD_EE_KEY].shape[1] if CONTEXT_T_WORLD_EE_KEY in batch else 0
-            num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
-            demos = self.batch_context(batch, num_demos)
         else:
             if "episode_index" not in batch:
                 raise KeyError("instant_policy training needs 'episode_index' in the batch to draw context "
-                               "demonstrations, or the context itself (contract.CONTEXT_KEYS)")
+                               "demonstrations, or the context itself (contract.CONTEXT_KEYS or ENCODED_KEYS)")
             encoder = self.training_context_encoder()
             episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
             # N is capped at the fewest other episodes of a row's task: a demonstration never repeats in one context.
             available = int(encoder.bank.other_episode_counts(episodes).min())
-            num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
+        num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
+        scene_geometry = None
+        if encoded:
+            demos = self.encoded_batch_context(batch, num_demos)
+            scene_geometry = (batch[SCENE_POSITIONS_KEY].to(device=device, dtype=torch.float32),
+                              batch[SCENE_FEATURES_KEY].to(device=device, dtype=torch.float32))
+        elif carried:
+            demos = self.batch_context(batch, num_demos)
+        else:
             context_episodes = np.stack([encoder.bank.sample_context(int(episode), num_demos, rng)
                                          for episode in episodes])
             demos = encoder.demos(context_episodes, device)
@@ -187,6 +201,29 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         losses = self.network.training_loss(context, T_ee_actions, action_gripper)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
         return losses["loss"], {**parts, "num_demos": float(num_demos)}
+
+    def encoded_batch_context(self, batch: dict[str, Tensor], num_demos: int) -> DemoTensors:
+        """The first ``num_demos`` demonstrations of an already encoded context (``contract.ENCODED_KEYS``:
+        ``(B, N, L, 4, 4)`` EE poses, ``(B, N, L)`` gripper states, the frozen encoder's scene nodes of each
+        waypoint in its own EE frame, ``(B, N, L, M, 3)`` positions and ``(B, N, L, M, D)`` features), checked:
+        ``KeyError`` for a missing key, ``ValueError`` naming a wrong shape or a non-finite value."""
+        missing = [key for key in ENCODED_KEYS if key not in batch]
+        if missing:
+            raise KeyError(f"an encoded training batch needs all of {list(ENCODED_KEYS)}; missing {missing}")
+        T_world_ee = batch[CONTEXT_T_WORLD_EE_KEY]
+        if T_world_ee.ndim != 5 or tuple(T_world_ee.shape[-2:]) != (4, 4) or len(T_world_ee) != len(batch[STATE_KEY]):
+            raise ValueError(f"{CONTEXT_T_WORLD_EE_KEY!r} must have shape (B, N, L, 4, 4) with B = "
+                             f"{len(batch[STATE_KEY])}, got {tuple(T_world_ee.shape)}")
+        check_range("the number of demonstrations N", num_demos, (1, T_world_ee.shape[1]))
+        check_range("num_waypoints (L)", T_world_ee.shape[2], SUPPORTED_WAYPOINTS)
+        device = batch[STATE_KEY].device
+
+        def first(key: str) -> Tensor:
+            return batch[key][:, :num_demos].to(device=device, dtype=torch.float32)
+
+        return DemoTensors(T_world_ee=first(CONTEXT_T_WORLD_EE_KEY), gripper_open=first(CONTEXT_GRIPPER_OPEN_KEY),
+                           scene_positions=first(CONTEXT_SCENE_POSITIONS_KEY),
+                           scene_features=first(CONTEXT_SCENE_FEATURES_KEY))
 
     def batch_context(self, batch: dict[str, Tensor], num_demos: int) -> DemoTensors:
         """The first ``num_demos`` demonstrations of the context a batch carries (``contract.CONTEXT_KEYS``:
@@ -225,11 +262,12 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             scene_features=features[row_of_id],
         )
 
-    def training_targets(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
-        """The checked inputs and targets of a training batch (see :meth:`forward`): ``points_world (B, P, 3)``,
+    def training_targets(self, batch: dict[str, Tensor]) -> tuple[Tensor | None, Tensor, Tensor, Tensor, Tensor]:
+        """The checked inputs and targets of a training batch (see :meth:`forward`): ``points_world (B, P, 3)`` (None
+        for a batch whose live frames come encoded, ``contract.SCENE_FEATURES_KEY``),
         ``state (B, 8)``, ``T_world_ee (B, 4, 4)``, the action poses in the current EE frame ``T_ee_actions
         (B, T, 4, 4)`` and the gripper commands ``action_gripper (B, T)`` in [0, 1] (padded actions held)."""
-        points_world, state = self._observation(batch)
+        points_world, state = self._observation(batch, cloud_required=SCENE_FEATURES_KEY not in batch)
         actions = batch.get(ACTION_KEY)
         batch_size, horizon = len(state), self.config.horizon
         if actions is not None and tuple(actions.shape) == (batch_size, 8) and "index" in batch:
@@ -483,23 +521,29 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return next(self.parameters()).device
 
     # ------------------------------------------------------------------ input checks
-    def _observation(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
-        """``points_world (B, P, 3)`` and ``state (B, 8)`` of ``batch``, checked: ``ValueError`` naming the problem."""
-        for key in (POINTCLOUD_KEY, STATE_KEY):
+    def _observation(self, batch: dict[str, Tensor], cloud_required: bool = True) -> tuple[Tensor | None, Tensor]:
+        """``points_world (B, P, 3)`` and ``state (B, 8)`` of ``batch``, checked: ``ValueError`` naming the problem.
+        Without ``cloud_required`` a batch without ``observation.pointcloud`` gives ``points_world`` None."""
+        required = (POINTCLOUD_KEY, STATE_KEY) if cloud_required or POINTCLOUD_KEY in batch else (STATE_KEY,)
+        for key in required:
             if key not in batch:
                 raise KeyError(f"instant_policy needs {key!r} in the batch, got keys {sorted(batch)}")
-        points, state = batch[POINTCLOUD_KEY], batch[STATE_KEY]
+        state = batch[STATE_KEY]
         if state.ndim != 2 or state.shape[1] != 8:
             raise ValueError(f"{STATE_KEY!r} must have shape (B, 8), got {tuple(state.shape)}")
+        if not torch.isfinite(state).all():
+            raise ValueError(f"{STATE_KEY!r} contains NaN or infinite values")
+        if POINTCLOUD_KEY not in required:
+            return None, state.float()
+        points = batch[POINTCLOUD_KEY]
         expected = (len(state), self.config.num_points, 3)
         if tuple(points.shape) != expected:
             raise ValueError(
                 f"point clouds of the wrong size: {POINTCLOUD_KEY!r} must have shape (B, P, 3) = {expected}, got "
                 f"{tuple(points.shape)}; resample each cloud to {self.config.num_points} points"
             )
-        for key, value in ((POINTCLOUD_KEY, points), (STATE_KEY, state)):
-            if not torch.isfinite(value).all():
-                raise ValueError(f"{key!r} contains NaN or infinite values")
+        if not torch.isfinite(points).all():
+            raise ValueError(f"{POINTCLOUD_KEY!r} contains NaN or infinite values")
         return points.float(), state.float()
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:

@@ -3,8 +3,8 @@ scheduler, checkpoints, resume, logging and accelerate, with every sample drawn 
 
 LeRobot 0.6.1 builds its training data in ``lerobot.scripts.lerobot_train.train`` by calling
 ``make_train_eval_datasets(cfg)`` and hands the data loader to ``accelerator.prepare``; it has no hook for a dataset
-of another kind. :func:`train` enters it at exactly those two names and nowhere else (the seam is tested against the
-pinned LeRobot version):
+of another kind. :func:`train` enters it at exactly two names for the stream (a third, ``save_checkpoint``, for the
+task pool below) and nowhere else (the seam is tested against the pinned LeRobot version):
 
 * ``make_train_eval_datasets`` returns a :class:`StreamDataset` (a ``torch`` ``IterableDataset`` with LeRobot's
   ``meta``, ``num_frames`` and ``num_episodes``) and no eval split; ``--dataset.streaming`` is set, so LeRobot uses
@@ -15,9 +15,15 @@ pinned LeRobot version):
   ``IterableDatasetShard``, which would make each process draw every process's samples and drop all but its own.
   Batches reach the policy's device through LeRobot's pre-processor (its ``device_processor`` step).
 
-A resumed run (``--resume=true``) starts its stream past every task the checkpoint's steps could have drawn
-(:func:`resume_start_task`). Every process writes the stream it draws to ``OUTPUT_DIR/stream/process-R-from-task-S
-.json`` (the config, its rank and first task).
+With a :class:`~.policy.task_pool.PoolConfig` the samples come from the rolling pool of encoded fresh tasks
+(:class:`~.policy.task_pool.TaskPool`) instead: its generator processes render and encode, the update reads encoded
+frames. Its state (:class:`~.policy.task_pool.PoolStats`: tasks received, samples, uses per task, the next task
+index) is written beside every checkpoint's training state, ``training_state/task_pool.json``, by wrapping a third
+name, ``save_checkpoint``; this file is written after the rest of the checkpoint, so it marks a complete save.
+
+A resumed run (``--resume=true``) starts its stream or pool past every task the checkpoint could have drawn: the
+pool's recorded ``next_task``, else :func:`resume_start_task`. Every process writes the stream it draws to
+``OUTPUT_DIR/stream/process-R-from-task-S.json`` (the config, its rank and first task).
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from pathlib import Path
 import torch
 
 from .contract import ACTION_KEY, POINTCLOUD_KEY, POINTCLOUD_NAMES, POSE_GRIPPER_NAMES, STATE_KEY
+from .policy.task_pool import EncoderSource, PoolConfig, TaskPool
 from .pseudo_demos.stream import PseudoTaskStream, StreamConfig
 
 STREAM_REPO_ID = "local/pseudo_task_stream"
@@ -40,6 +47,8 @@ STREAM_RECORDS = "stream"
 # Task indices a resumed stream skips per sample the checkpoint's steps drew: room for the tasks that failed to plan
 # and for the batches the data loader had prefetched.
 RESUME_TASKS_PER_SAMPLE = 2
+# The pool's state beside each checkpoint's training state (written last: a complete save has it).
+POOL_STATE_FILE = "task_pool.json"
 
 
 @dataclass
@@ -68,15 +77,16 @@ class StreamDatasetMetadata:
 
 
 class StreamDataset(torch.utils.data.IterableDataset):
-    """:class:`PseudoTaskStream` as ``lerobot-train`` takes a dataset: ``meta``, and the run's size for its logs
-    (``num_frames``: the samples it will draw, ``num_episodes``: the demonstrations behind them)."""
+    """:class:`PseudoTaskStream` or :class:`TaskPool` as ``lerobot-train`` takes a dataset: ``meta``, and the run's
+    size for its logs (``num_frames``: the samples it will draw, ``num_episodes``: the demonstrations behind them at
+    one task per ``samples_per_task`` samples)."""
 
-    def __init__(self, stream: PseudoTaskStream, meta: StreamDatasetMetadata, num_samples: int):
+    def __init__(self, stream: PseudoTaskStream | TaskPool, meta: StreamDatasetMetadata, num_samples: int,
+                 stream_config: StreamConfig):
         super().__init__()
         self.stream, self.meta = stream, meta
         self.num_frames = num_samples
-        config = stream.config
-        self.num_episodes = math.ceil(num_samples / config.samples_per_task) * (config.num_demos + 1)
+        self.num_episodes = math.ceil(num_samples / stream_config.samples_per_task) * (stream_config.num_demos + 1)
 
     def __iter__(self):
         return iter(self.stream)
@@ -92,6 +102,20 @@ def resume_start_task(checkpoint_path: Path | None, batch_size: int, world_size:
     return step * batch_size * world_size * RESUME_TASKS_PER_SAMPLE
 
 
+def pool_start_task(checkpoint_path: Path | None, batch_size: int, world_size: int) -> int:
+    """The first task index of a pool run resumed from ``checkpoint_path``: the ``next_task`` its pool recorded
+    (doubled past its first task when several processes ran: the record is the main process's, and the others may
+    have drawn further), else :func:`resume_start_task`'s bound (a checkpoint of a stream run)."""
+    if checkpoint_path is None:
+        return 0
+    record = Path(checkpoint_path) / "training_state" / POOL_STATE_FILE
+    if not record.is_file():
+        return resume_start_task(checkpoint_path, batch_size, world_size)
+    state = json.loads(record.read_text())
+    next_task = int(state["stats"]["next_task"])
+    return next_task if world_size == 1 else 2 * next_task - int(state["start_task"])
+
+
 def stream_config_for(policy_config, stream_config: StreamConfig) -> StreamConfig:
     """``stream_config`` with the N, L, T and P the policy trains on (its ``max_demos``, ``num_waypoints``,
     ``horizon`` and clouds' size)."""
@@ -100,22 +124,60 @@ def stream_config_for(policy_config, stream_config: StreamConfig) -> StreamConfi
                                num_points=policy_config.num_points)
 
 
-def make_stream_datasets(cfg, stream_config: StreamConfig, rank: int, world_size: int):
-    """``make_train_eval_datasets`` for the stream: the :class:`StreamDataset` of ``stream_config`` for this process,
-    and no eval split. Rendering runs on the policy's device when the data loader has no worker processes, else on
-    the CPU in the workers."""
+def make_stream_datasets(cfg, stream_config: StreamConfig, rank: int, world_size: int,
+                         pool_config: PoolConfig | None = None):
+    """``make_train_eval_datasets`` for the stream, or for the task pool with ``pool_config``: the
+    :class:`StreamDataset` of this process, and no eval split. The stream renders on the policy's device when the
+    data loader has no worker processes, else on the CPU in the workers; the pool renders and encodes in its own
+    processes, on ``pool_config.device``."""
     config = stream_config_for(cfg.policy, stream_config)
-    device = cfg.policy.device if cfg.num_workers == 0 else "cpu"
-    start = resume_start_task(cfg.checkpoint_path if cfg.resume else None, cfg.batch_size, world_size)
-    stream = PseudoTaskStream(config, device=device, rank=rank, world_size=world_size, start_task=start)
+    checkpoint = cfg.checkpoint_path if cfg.resume else None
+    if pool_config is None:
+        device = cfg.policy.device if cfg.num_workers == 0 else "cpu"
+        start = resume_start_task(checkpoint, cfg.batch_size, world_size)
+        source = PseudoTaskStream(config, device=device, rank=rank, world_size=world_size, start_task=start)
+        described = source.describe()
+    else:
+        if cfg.num_workers != 0:
+            raise ValueError("the task pool feeds the update from its own generator processes: use --num_workers=0 "
+                             "and --pool.generators for more of them")
+        pool_config = dataclasses.replace(pool_config, stream=config, seed=cfg.seed or 0)
+        start = pool_start_task(checkpoint, cfg.batch_size, world_size)
+        source = TaskPool(pool_config, policy_encoder_source(cfg.policy), rank=rank, world_size=world_size,
+                          start_task=start)
+        described = (f"TaskPool of {pool_config.capacity} encoded tasks fed by {pool_config.generators} generator "
+                     f"process(es) on {pool_config.device}, {config.samples_per_task} live frame(s) per task; "
+                     + PseudoTaskStream(config, rank=rank, world_size=world_size, start_task=start).describe())
     meta = StreamDatasetMetadata(num_points=config.num_points, fps=config.generation.fps)
     record = Path(cfg.output_dir) / STREAM_RECORDS / f"process-{rank}-from-task-{start}.json"
     record.parent.mkdir(parents=True, exist_ok=True)
     record.write_text(json.dumps({"rank": rank, "world_size": world_size, "start_task": start,
-                                  "config": dataclasses.asdict(config)}, indent=2))
-    logging.info("instant_policy: training on the pseudo-task stream from task %d (process %d of %d): %s",
-                 start, rank, world_size, stream.describe())
-    return StreamDataset(stream, meta, cfg.steps * cfg.batch_size), None
+                                  "config": dataclasses.asdict(config),
+                                  "pool": None if pool_config is None else {
+                                      key: value for key, value in dataclasses.asdict(pool_config).items()
+                                      if key != "stream"}}, indent=2))
+    logging.info("instant_policy: training on the pseudo-task %s from task %d (process %d of %d): %s",
+                 "stream" if pool_config is None else "pool", start, rank, world_size, described)
+    return StreamDataset(source, meta, cfg.steps * cfg.batch_size, config), None
+
+
+def policy_encoder_source(policy_config) -> EncoderSource:
+    """Where the pool's generators read the policy's frozen encoder: the checkpoint it continues
+    (``pretrained_path``), else its pretrained encoder weights file."""
+    if policy_config.pretrained_path is not None:
+        return EncoderSource(policy_config.encoder_config, checkpoint=str(policy_config.pretrained_path))
+    if not policy_config.pretrained_encoder:
+        raise ValueError("the task pool needs the policy's frozen encoder to be pretrained (pretrained_encoder=true) "
+                         "or a checkpoint to continue (--policy.path): a random encoder cannot be rebuilt elsewhere")
+    return EncoderSource(policy_config.encoder_config, weights=str(policy_config.encoder_weights_path()))
+
+
+def write_pool_state(checkpoint_dir: Path, pool: TaskPool) -> None:
+    """The pool's :class:`~.policy.task_pool.PoolStats` (and its first task) beside a checkpoint's training state."""
+    pool.receive()
+    state = {"start_task": pool.start_task, "stats": pool.stats().to_dict()}
+    path = Path(checkpoint_dir) / "training_state" / POOL_STATE_FILE
+    path.write_text(json.dumps(state, indent=2))
 
 
 def stream_accelerator_class():
@@ -131,9 +193,10 @@ def stream_accelerator_class():
     return StreamAccelerator
 
 
-def train(stream_config: StreamConfig, lerobot_argv: list[str]) -> None:
+def train(stream_config: StreamConfig, lerobot_argv: list[str], pool_config: PoolConfig | None = None) -> None:
     """Run ``lerobot-train`` with ``lerobot_argv`` (its own flags; ``--dataset.repo_id`` and
-    ``--dataset.streaming`` are set here) on ``stream_config``'s stream (module docstring)."""
+    ``--dataset.streaming`` are set here) on ``stream_config``'s stream, or on the task pool of ``pool_config``
+    (module docstring)."""
     import sys
 
     for flag in ("--dataset.repo_id", "--dataset.root", "--dataset.streaming"):
@@ -143,11 +206,28 @@ def train(stream_config: StreamConfig, lerobot_argv: list[str]) -> None:
     from accelerate import PartialState
     from lerobot.scripts import lerobot_train
 
+    made: list[StreamDataset] = []
+
     def make_datasets(cfg):  # called after lerobot-train made its Accelerator: the process's place is known
         state = PartialState()
-        return make_stream_datasets(cfg, stream_config, state.process_index, state.num_processes)
+        dataset, _ = make_stream_datasets(cfg, stream_config, state.process_index, state.num_processes, pool_config)
+        made.append(dataset)
+        return dataset, None
+
+    save_checkpoint = lerobot_train.save_checkpoint
+
+    def save_checkpoint_and_pool(checkpoint_dir, *args, **kwargs):
+        save_checkpoint(checkpoint_dir, *args, **kwargs)
+        if made and isinstance(made[0].stream, TaskPool):
+            write_pool_state(checkpoint_dir, made[0].stream)
 
     lerobot_train.make_train_eval_datasets = make_datasets
+    lerobot_train.save_checkpoint = save_checkpoint_and_pool
     accelerate.Accelerator = stream_accelerator_class()
     sys.argv = ["lerobot-train", f"--dataset.repo_id={STREAM_REPO_ID}", "--dataset.streaming=true", *lerobot_argv]
-    lerobot_train.main()
+    try:
+        lerobot_train.main()
+    finally:
+        for dataset in made:
+            if isinstance(dataset.stream, TaskPool):
+                dataset.stream.close()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +16,12 @@ import pytest
 import torch
 
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.stream_training import RESUME_TASKS_PER_SAMPLE, resume_start_task
+from lerobot_instant_policy.stream_training import (
+    POOL_STATE_FILE,
+    RESUME_TASKS_PER_SAMPLE,
+    pool_start_task,
+    resume_start_task,
+)
 
 BIN = Path(sys.executable).parent
 # Two objects and one task group: every task loads the same two meshes.
@@ -60,6 +66,32 @@ def test_lerobot_train_trains_on_the_stream_saves_loadable_checkpoints_and_resum
     assert f"from task {start} (process 0 of 1)" in resumed.stdout + resumed.stderr
     assert (out / "checkpoints" / "000003" / "pretrained_model" / "model.safetensors").is_file()
     assert resume_start_task(out / "checkpoints" / "000002", batch_size=2, world_size=1) == start
+
+
+def test_the_task_pool_trains_records_its_state_in_each_save_and_a_killed_run_resumes_past_its_tasks(tmp_path):
+    """``--pool``: every save carries the pool's account; a run killed after its first save resumes from that save,
+    its pool starting past every task the save's run had received (nothing seen before is drawn again)."""
+    out = tmp_path / "run"
+    pool_flags = ["--pool", "--pool.min_tasks=1", "--pool.capacity=4"]
+    run = _train(tmp_path, *POLICY_FLAGS, *pool_flags, "--steps=4", f"--output_dir={out}")
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "training on the pseudo-task pool from task 0 (process 0 of 1)" in run.stdout + run.stderr
+    states = {step: json.loads((out / "checkpoints" / f"{step:06d}" / "training_state" / POOL_STATE_FILE).read_text())
+              for step in (2, 4)}
+    for step, state in states.items():
+        stats = state["stats"]
+        assert stats["samples"] == 2 * step and stats["distinct_tasks_used"] <= stats["tasks_received"]
+        assert stats["next_task"] >= stats["tasks_received"] + stats["skipped"] and stats["max_uses"] >= 1
+    shutil.rmtree(out / "checkpoints" / "000004")  # killed before its second save
+    first_save = out / "checkpoints" / "000002"
+    resumed = _train(tmp_path, *pool_flags, f"--config_path={first_save / 'pretrained_model' / 'train_config.json'}",
+                     "--resume=true", "--steps=3")
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    next_task = states[2]["stats"]["next_task"]
+    assert f"training on the pseudo-task pool from task {next_task} (process 0 of 1)" in resumed.stdout + resumed.stderr
+    state = json.loads((out / "checkpoints" / "000003" / "training_state" / POOL_STATE_FILE).read_text())
+    assert state["start_task"] == next_task and state["stats"]["samples"] == 2  # one step past the save
+    assert pool_start_task(first_save, batch_size=2, world_size=1) == next_task
 
 
 def test_flags_the_stream_sets_are_refused_and_a_missing_config_is_named(tmp_path, capsys):

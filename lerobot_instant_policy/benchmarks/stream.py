@@ -1,22 +1,27 @@
-"""Speed of the pseudo-task stream (``pseudo_demos.stream``): fresh-task samples per second of the stream alone, and
-of the stream feeding ``instant_policy``'s training update for each preset (width), with the share of each update
-spent generating. Every sample's task is new unless ``samples_per_task`` > 1.
+"""Speed of training on fresh pseudo-tasks: the stream (``pseudo_demos.stream``, every cloud rendered and encoded in
+the update's process) or the rolling pool of encoded tasks (``policy.task_pool``, rendered and encoded in generator
+processes), each feeding ``instant_policy``'s training update.
 
-The update is ``lerobot-train``'s (forward, backward, gradient clipping, the preset's optimizer) on the batches the
-stream hands out (N, L, T, P of the preset's config), on the GPU when there is one. Timings are medians over
-``batches`` batches after one warm-up batch (which also builds the objects' surface samples).
+Both are timed by wall time over the whole run, from before the first task is planned (the pool's generator
+processes start inside the span) to the last update, so that no render, encoding or wait falls outside it: samples
+per second are the samples updated on over that span, fresh tasks per second the distinct tasks that entered
+training over it. The update is ``lerobot-train``'s (forward, backward, gradient clipping, the preset's optimizer) on
+the preset's N, L, T and P, on the GPU when there is one.
 """
 
 from __future__ import annotations
 
-import statistics
+import dataclasses
+import itertools
 import time
 
 import torch
 
 from ..configuration_instant_policy import InstantPolicyConfig
+from ..contract import CONTEXT_ID_KEY
+from ..policy.task_pool import PoolConfig, TaskPool
 from ..pseudo_demos.stream import PseudoTaskStream, StreamConfig
-from ..stream_training import stream_config_for
+from ..stream_training import policy_encoder_source, stream_config_for
 
 
 def _synchronize(device: torch.device) -> None:
@@ -24,77 +29,76 @@ def _synchronize(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def _batches(stream: PseudoTaskStream, batch_size: int):
-    loader = torch.utils.data.DataLoader(stream, batch_size=batch_size, num_workers=0)
-    return iter(loader)
-
-
-def _timed_batches(batches, count: int, device: torch.device) -> list[float]:
-    """Seconds per batch of ``count`` batches (after one warm-up batch)."""
-    next(batches)
-    times = []
-    for _ in range(count):
-        start = time.perf_counter()
-        next(batches)
-        _synchronize(device)
-        times.append(time.perf_counter() - start)
-    return times
-
-
-def stream_benchmark(stream_config: StreamConfig, presets: tuple[str, ...] = ("small",), batch_size: int = 8,
-                     batches: int = 3, device: str | None = None) -> dict:
-    """The stream alone and the stream plus one training update per preset (module docstring), as JSON-ready
-    figures: samples per second (fresh tasks per second beside them) and the generating share of each update."""
-    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    result = {"device": str(device), "batch": batch_size, "batches": batches,
-              "samples_per_task": stream_config.samples_per_task, "torch_threads": torch.get_num_threads(),
-              "stream": _stream_summary(stream_config), "presets": {}}
-    alone_config = stream_config_for(InstantPolicyConfig(preset=presets[0], device=str(device)), stream_config)
-    times = _timed_batches(_batches(PseudoTaskStream(alone_config, device=device), batch_size), batches, device)
-    median = statistics.median(times)
-    result["stream_alone"] = {"batch_s": median, "samples_per_s": batch_size / median,
-                              "tasks_per_s": batch_size / median / stream_config.samples_per_task,
-                              "N": alone_config.num_demos, "L": alone_config.num_waypoints}
-    for preset in presets:
-        result["presets"][preset] = _with_update(preset, stream_config, batch_size, batches, device)
-    return result
-
-
-def _stream_summary(stream_config: StreamConfig) -> dict:
-    """What the stream draws (for the JSON)."""
-    generation = stream_config.generation
-    return {"family": generation.family, "object_split": generation.object_split, "seed": generation.seed,
-            "shared_layout_fraction": generation.demo.shared_layout_fraction,
-            "tasks_per_render": stream_config.tasks_per_render}
-
-
-def _with_update(preset: str, stream_config: StreamConfig, batch_size: int, batches: int, device: torch.device) -> dict:
+def _policy(preset: str, device: torch.device):
     from ..modeling_instant_policy import InstantPolicyPolicy
 
-    config = InstantPolicyConfig(preset=preset, device=str(device))
-    if config.pretrained_encoder and not config.encoder_weights_path().is_file():
-        config = InstantPolicyConfig(preset=preset, device=str(device), pretrained_encoder=False)  # times the same
+    config = InstantPolicyConfig(preset=preset, device=str(device), reencode_action_clouds=False)
     policy = InstantPolicyPolicy(config).to(device).train()
     optimizer_config = config.get_optimizer_preset()
-    optimizer = optimizer_config.build(policy.get_optim_params())
-    stream = PseudoTaskStream(stream_config_for(config, stream_config), device=device)
-    loader = _batches(stream, batch_size)
-    generate_s, update_s = [], []
-    for index in range(batches + 1):
-        start = time.perf_counter()
-        batch = {key: value.to(device) for key, value in next(loader).items()}
-        _synchronize(device)
-        generated = time.perf_counter()
+    return policy, optimizer_config.build(policy.get_optim_params()), optimizer_config.grad_clip_norm
+
+
+def _train(source, policy, optimizer, grad_clip: float, batch_size: int, seconds: float, steps: int | None,
+           device: torch.device) -> dict:
+    """Updates on batches of ``source`` until ``seconds`` of wall time or ``steps`` updates, whichever comes first."""
+    batches = iter(torch.utils.data.DataLoader(source, batch_size=batch_size, num_workers=0))
+    started = time.perf_counter()
+    update_s, done, task_ids = 0.0, 0, set()
+    for done in itertools.count(1):
+        batch = {key: value.to(device) for key, value in next(batches).items()}
+        task_ids.update(batch[CONTEXT_ID_KEY].tolist())
+        updating = time.perf_counter()
         loss, _ = policy.forward(batch)
         loss.backward()
-        torch.nn.utils.clip_grad_norm_(policy.parameters(), optimizer_config.grad_clip_norm)
+        torch.nn.utils.clip_grad_norm_(policy.parameters(), grad_clip)
         optimizer.step()
         optimizer.zero_grad()
         _synchronize(device)
-        if index > 0:  # the first batch warms up
-            generate_s.append(generated - start)
-            update_s.append(time.perf_counter() - generated)
-    generate, update = statistics.median(generate_s), statistics.median(update_s)
-    return {"hidden_dim": config.hidden_dim, "parameters": sum(p.numel() for p in policy.parameters()),
-            "generate_s": generate, "update_s": update, "samples_per_s": batch_size / (generate + update),
-            "generating_share": generate / (generate + update)}
+        update_s += time.perf_counter() - updating
+        if time.perf_counter() - started >= seconds or (steps is not None and done >= steps):
+            break
+    wall = time.perf_counter() - started
+    return {"wall_s": wall, "steps": done, "samples": done * batch_size, "samples_per_s": done * batch_size / wall,
+            "distinct_tasks": len(task_ids), "fresh_tasks_per_s": len(task_ids) / wall,
+            "update_share": update_s / wall, "update_samples_per_s": done * batch_size / update_s}
+
+
+def _stream_summary(stream_config: StreamConfig) -> dict:
+    generation = stream_config.generation
+    width, height = stream_config.zbuffer_resolution
+    return {"family": generation.family, "object_split": generation.object_split, "seed": generation.seed,
+            "shared_layout_fraction": generation.demo.shared_layout_fraction,
+            "samples_per_task": stream_config.samples_per_task, "tasks_per_render": stream_config.tasks_per_render,
+            "zbuffer": f"{width}x{height}", "surface_samples": stream_config.surface_samples}
+
+
+def stream_benchmark(stream_config: StreamConfig, preset: str = "small", batch_size: int = 8, seconds: float = 60.0,
+                     steps: int | None = None, device: str | None = None) -> dict:
+    """The stream feeding the update (module docstring), as JSON-ready figures."""
+    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    policy, optimizer, grad_clip = _policy(preset, device)
+    config = stream_config_for(policy.config, stream_config)
+    stream = PseudoTaskStream(config, device=device)
+    result = _train(stream, policy, optimizer, grad_clip, batch_size, seconds, steps, device)
+    return {"source": "stream", "device": str(device), "preset": preset, "hidden_dim": policy.config.hidden_dim,
+            "batch": batch_size, "torch_threads": torch.get_num_threads(), "stream": _stream_summary(config),
+            "skipped_tasks": stream.skipped_tasks, **result}
+
+
+def pool_benchmark(stream_config: StreamConfig, pool_config: PoolConfig, preset: str = "small", batch_size: int = 8,
+                   seconds: float = 600.0, steps: int | None = None, device: str | None = None) -> dict:
+    """The task pool feeding the update (module docstring), as JSON-ready figures with the pool's own account
+    (tasks received, uses per task, seconds waited for tasks)."""
+    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    policy, optimizer, grad_clip = _policy(preset, device)
+    config = stream_config_for(policy.config, stream_config)
+    pool = TaskPool(dataclasses.replace(pool_config, stream=config), policy_encoder_source(policy.config))
+    try:
+        result = _train(pool, policy, optimizer, grad_clip, batch_size, seconds, steps, device)
+        stats = pool.stats().to_dict()
+    finally:
+        pool.close()
+    return {"source": "pool", "device": str(device), "preset": preset, "hidden_dim": policy.config.hidden_dim,
+            "batch": batch_size, "torch_threads": torch.get_num_threads(), "stream": _stream_summary(config),
+            "generators": pool_config.generators, "generator_threads": pool_config.generator_threads,
+            "generator_device": pool_config.device, "capacity": pool_config.capacity, "pool": stats, **result}

@@ -20,8 +20,9 @@ through ``torch.compile`` for the training step) and ``--compare-compile-model``
 ``warmup_s``.
 ``lerobot-ip-bench lerobot-train --root DIR``: ``lerobot-train``'s own samples per second on a dataset, end to end
 (data loader, LeRobot's loop, the update), for each ``--num-workers`` and ``--omp-wait-policy`` in alternation.
-``lerobot-ip-bench stream --config CONFIG``: fresh pseudo-task samples per second of the stream alone and feeding
-the training update, per ``--presets`` width, with the update's share spent generating (``benchmarks.stream``).
+``lerobot-ip-bench stream|pool --config CONFIG``: training on fresh pseudo-tasks from the stream (rendered in the
+update's process) or from the rolling pool of encoded tasks (``--generators`` processes): samples and fresh tasks per
+second by wall time over the whole run, every render inside it, and the pool's uses per task (``benchmarks.stream``).
 The benchmarks themselves are :mod:`lerobot_instant_policy.benchmarks`. The repository's development benchmarks
 (the geometry encoder alone, a training row's data) are ``python -m workbench.cli.bench`` in a clone, not installed.
 """
@@ -275,36 +276,73 @@ def _run_lerobot_train(parser: argparse.ArgumentParser, args: argparse.Namespace
                                args.compile_model == "true", args.rounds)
 
 
-# ---------------------------------------------------------------------------------------------------- stream
+# ---------------------------------------------------------------------------------------------------- stream, pool
 def _add_stream(commands) -> None:
-    stream = commands.add_parser("stream", help="fresh pseudo-task samples per second: the stream alone and feeding "
-                                                "the training update, per preset (width)")
-    stream.add_argument("--config", default="configs/generate/train_large.json",
-                        help="a lerobot-ip-generate JSON config: the distributions the stream draws from")
-    stream.add_argument("--presets", nargs="+", choices=["small", "paper"], default=["small"],
-                        help="instant_policy presets (widths) to time the update of")
-    stream.add_argument("--batch-size", type=int, default=8)
-    stream.add_argument("--batches", type=int, default=3, help="timed batches (after one warm-up batch)")
-    stream.add_argument("--samples-per-task", type=int, default=1,
-                        help="live frames per task (1: every sample from a fresh task)")
-    stream.add_argument("--tasks-per-render", type=int, help="tasks rendered in one batched call (default: the "
-                                                             "stream's)")
-    stream.add_argument("--device", help="default: cuda when there is one, else cpu")
-    stream.add_argument("--json", action="store_true", help=JSON_HELP)
-    stream.set_defaults(handler=_run_stream)
+    for name, help_text in (
+        ("stream", "training on the pseudo-task stream (every cloud rendered and encoded in the update's process): "
+                   "samples and fresh tasks per second by wall time over the whole run"),
+        ("pool", "training on the rolling pool of encoded fresh tasks (generator processes render and encode): "
+                 "samples and fresh tasks per second by wall time over the whole run, uses per task"),
+    ):
+        command = commands.add_parser(name, help=help_text)
+        command.add_argument("--config", default="configs/generate/stream_bounded.json",
+                             help="a lerobot-ip-generate JSON config: the distributions the tasks are drawn from")
+        command.add_argument("--preset", choices=["small", "paper"], default="small",
+                             help="the instant_policy preset (width) whose update is fed")
+        command.add_argument("--batch-size", type=int, default=8)
+        command.add_argument("--seconds", type=float, default=600.0 if name == "pool" else 60.0,
+                             help="wall time of the run (it stops earlier at --steps)")
+        command.add_argument("--steps", type=int, help="stop after this many updates")
+        command.add_argument("--samples-per-task", type=int, default=8 if name == "pool" else 1,
+                             help="live frames per task (the stream: samples per task; the pool: frames encoded per "
+                                  "task, of which each sample draws one)")
+        command.add_argument("--tasks-per-render", type=int, help="tasks rendered in one batched call (default: "
+                                                                  "the stream's)")
+        command.add_argument("--zbuffer", type=int, nargs=2, metavar=("W", "H"),
+                             help="splatting z-buffer size (default: the stream's 480 360)")
+        command.add_argument("--threads", type=int, help="torch threads of the update (default: torch's)")
+        command.add_argument("--device", help="the update's device (default: cuda when there is one, else cpu)")
+        if name == "pool":  # default: PoolConfig's
+            command.add_argument("--generators", type=int, help="generator processes")
+            command.add_argument("--generator-threads", type=int, help="torch threads per generator")
+            command.add_argument("--generator-device", help="where generators render and encode: cpu or cuda")
+            command.add_argument("--capacity", type=int, help="tasks held, the oldest replaced")
+            command.add_argument("--min-tasks", type=int, help="tasks received before the first sample")
+        command.add_argument("--json", action="store_true", help=JSON_HELP)
+        command.set_defaults(handler=_run_stream)
 
 
 def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    if min(args.batch_size, args.batches, args.samples_per_task, args.tasks_per_render or 1) <= 0:
-        parser.error("--batch-size, --batches, --samples-per-task and --tasks-per-render must be positive")
-    from ..benchmarks.stream import stream_benchmark
+    sizes = [args.batch_size, args.samples_per_task, args.tasks_per_render, args.steps, args.threads]
+    if min(size for size in sizes if size is not None) <= 0 or args.seconds < 0:
+        parser.error("--batch-size, --samples-per-task, --tasks-per-render, --steps, --threads and --seconds must be "
+                     "positive")
+    import torch
+
+    from ..benchmarks.stream import pool_benchmark, stream_benchmark
     from ..pseudo_demos.stream import StreamConfig
 
+    if args.threads:
+        torch.set_num_threads(args.threads)
     overrides = {"samples_per_task": args.samples_per_task}
     if args.tasks_per_render:
         overrides["tasks_per_render"] = args.tasks_per_render
+    if args.zbuffer:
+        overrides["zbuffer_resolution"] = tuple(args.zbuffer)
     config = StreamConfig.from_generate_config(args.config, **overrides)
-    return stream_benchmark(config, tuple(args.presets), args.batch_size, args.batches, args.device)
+    run = dict(preset=args.preset, batch_size=args.batch_size, seconds=args.seconds, steps=args.steps,
+               device=args.device)
+    if args.command == "stream":
+        return stream_benchmark(config, **run)
+    from ..policy.task_pool import PoolConfig
+
+    chosen = {"capacity": args.capacity, "min_tasks": args.min_tasks, "generators": args.generators,
+              "generator_threads": args.generator_threads, "device": args.generator_device}
+    try:
+        pool = PoolConfig(stream=config, **{key: value for key, value in chosen.items() if value is not None})
+    except ValueError as error:
+        parser.error(str(error))
+    return pool_benchmark(config, pool, **run)
 
 
 if __name__ == "__main__":

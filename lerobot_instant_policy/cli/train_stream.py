@@ -7,9 +7,12 @@ and rendered as training goes, from the distributions of a ``lerobot-ip-generate
       --policy.type=instant_policy --policy.device=cpu --batch_size=8 --steps=200 --output_dir=outputs/train/cpu
   accelerate launch --num_processes 2 -m lerobot_instant_policy.cli.train_stream --stream.config ... (one stream
       per process)
+  lerobot-ip-train --stream.config configs/generate/stream_bounded.json --pool --pool.generators 1 \
+      --stream.samples_per_task 8 --policy.type=instant_policy --policy.device=cpu --batch_size=8 ... (the rolling
+      pool of encoded fresh tasks: generator processes render and encode, the update reads encoded frames)
 
-Every flag not of ``--stream.`` goes to ``lerobot-train`` as it is (``--policy.*``, ``--steps``, ``--resume`` …);
-``--dataset.*`` is the stream's.
+Every flag not of ``--stream.`` or ``--pool`` goes to ``lerobot-train`` as it is (``--policy.*``, ``--steps``,
+``--resume`` …); ``--dataset.*`` is the stream's.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import argparse
 import dataclasses
 import sys
 
+from ..policy.task_pool import PoolConfig
 from ..pseudo_demos.stream import StreamConfig
 
 
@@ -32,12 +36,35 @@ def build_parser() -> argparse.ArgumentParser:
                              "on a CPU, where rendering is dear)")
     parser.add_argument("--stream.tasks_per_render", dest="tasks_per_render", type=int,
                         help="tasks planned, then rendered in one batched call")
+    parser.add_argument("--stream.surface_samples", dest="surface_samples", type=int,
+                        help="surface samples per object that splatting draws the clouds from (default 8192)")
     parser.add_argument("--stream.seed", dest="seed", type=int, help="the stream's seed (default: the config's)")
+    parser.add_argument("--pool", action="store_true",
+                        help="draw from a rolling pool of encoded fresh tasks (policy.task_pool) instead of rendering "
+                             "in the update; --stream.samples_per_task is then the live frames encoded per task")
+    defaults = PoolConfig()
+    for name, help_text in (("capacity", "tasks held, the oldest replaced"),
+                            ("min_tasks", "tasks received before the first sample"),
+                            ("generators", "generator processes (each renders and encodes)"),
+                            ("generator_threads", "torch threads per generator process"),
+                            ("queue_size", "encoded tasks waiting between the generators and the pool")):
+        parser.add_argument(f"--pool.{name}", dest=f"pool_{name}", type=int, default=getattr(defaults, name),
+                            help=f"{help_text} (default {getattr(defaults, name)})")
+    parser.add_argument("--pool.device", dest="pool_device", default=defaults.device,
+                        help="where the generators render and encode: cpu or cuda (default cpu)")
     return parser
 
 
+def pool_config_from_args(args: argparse.Namespace, stream_config: StreamConfig) -> PoolConfig | None:
+    """The pool's config from ``--pool.*`` (None without ``--pool``); its stream and seed are set by the training."""
+    if not args.pool:
+        return None
+    names = ("capacity", "min_tasks", "generators", "generator_threads", "queue_size", "device")
+    return PoolConfig(stream=stream_config, **{name: getattr(args, f"pool_{name}") for name in names})
+
+
 def stream_config_from_args(args: argparse.Namespace) -> StreamConfig:
-    overrides = {name: getattr(args, name) for name in ("samples_per_task", "tasks_per_render")
+    overrides = {name: getattr(args, name) for name in ("samples_per_task", "tasks_per_render", "surface_samples")
                  if getattr(args, name) is not None}
     config = StreamConfig.from_generate_config(args.config, **overrides)
     if args.seed is None:
@@ -52,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     args, lerobot_argv = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
     try:
         config = stream_config_from_args(args)
-        train(config, lerobot_argv)
+        train(config, lerobot_argv, pool_config_from_args(args, config))
     except (ValueError, FileNotFoundError) as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2

@@ -16,6 +16,7 @@ import torch
 from torch import nn
 
 from ..config_io import config_from_dict
+from ..geometry.rigid_torch import full_precision, invert_rigid, transform_points
 from .encodings import encoding_dim, sinusoidal_encoding
 from .point_ops import (
     farthest_point_sampling,
@@ -137,6 +138,21 @@ class GeometryEncoder(nn.Module):
         for layer in self.layers:
             positions, features = layer(positions, features, generator)
         return positions, features
+
+    @full_precision()
+    def encode(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The frozen encoder's reading of clouds ``(..., P, 3)`` (any frame, any leading shape) → positions
+        ``(..., M, 3)`` in that frame, features ``(..., M, D)``: deterministic, without gradients and always in full
+        precision (its farthest-point sampling picks the scene nodes, and its output is cached)."""
+        leading = points.shape[:-2]
+        with torch.no_grad():
+            positions, features = self(points.reshape(-1, *points.shape[-2:]))
+        return positions.view(*leading, *positions.shape[1:]), features.view(*leading, *features.shape[1:])
+
+    def encode_in_frames(self, points_world: torch.Tensor, T_world_frame: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`encode` on clouds ``points_world (..., P, 3)`` expressed in their own frames ``T_world_frame
+        (..., 4, 4)`` (an observation's EE frame) → positions in those frames ``(..., M, 3)``, features ``(..., M, D)``."""
+        return self.encode(transform_points(invert_rigid(T_world_frame), points_world))
 
     def check_points(self, points: torch.Tensor) -> None:
         """Raise ``ValueError`` for a wrong shape or dtype, too few points, or NaN/inf coordinates."""

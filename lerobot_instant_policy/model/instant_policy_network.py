@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import nn
 
-from ..geometry.rigid_torch import full_precision, invert_rigid, mean_rigid, transform_points
+from ..geometry.rigid_torch import invert_rigid, mean_rigid, transform_points
 from .action_diffusion import FLOW_DIM, ActionDiffusion, points_in_action_frames
 from .dense_graphs import DenseGraphs
 from .encodings import encoding_dim, sinusoidal_encoding
@@ -86,23 +86,24 @@ class InstantPolicyContext:
 
     Attributes:
         current_gripper_features: ``(B, G, H)`` φ's output at the current gripper nodes (the paper's bottleneck).
-        points_ee: ``(B, P, 3)`` the live cloud in the current EE frame.
+        points_ee: ``(B, P, 3)`` the live cloud in the current EE frame; None when the live frame came encoded
+            (only ``reencode_action_clouds`` reads it).
         scene_positions_ee: ``(B, M, 3)`` the current scene nodes in the EE frame.
         scene_features: ``(B, M, D)`` their encoder features.
     """
 
     current_gripper_features: torch.Tensor
-    points_ee: torch.Tensor
+    points_ee: torch.Tensor | None
     scene_positions_ee: torch.Tensor
     scene_features: torch.Tensor
 
     @property
     def batch_size(self) -> int:
-        return self.points_ee.shape[0]
+        return self.scene_positions_ee.shape[0]
 
     def repeat_rows(self, repeats: int) -> InstantPolicyContext:
         """Each batch row ``repeats`` times in a row: batch ``B`` → ``B · repeats`` (row ``b`` at ``b · repeats …``)."""
-        return InstantPolicyContext(*(value.repeat_interleave(repeats, dim=0) for value in (
+        return InstantPolicyContext(*(None if value is None else value.repeat_interleave(repeats, dim=0) for value in (
             self.current_gripper_features, self.points_ee, self.scene_positions_ee, self.scene_features)))
 
 
@@ -211,20 +212,17 @@ class InstantPolicyNetwork(nn.Module):
             raise ValueError(f"{name} contains NaN or inf values")
 
     # ------------------------------------------------------------------ node features
-    @full_precision()
     def encode_clouds(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Frozen encoder on clouds ``(..., P, 3)`` (any frame) → positions ``(..., M, 3)``, features ``(..., M, D)``.
-        Always in full precision: its farthest-point sampling picks the scene nodes, and its output is cached."""
-        leading = points.shape[:-2]
-        with torch.no_grad():
-            positions, features = self.geometry_encoder(points.reshape(-1, *points.shape[-2:]))
-        return positions.view(*leading, *positions.shape[1:]), features.view(*leading, *features.shape[1:])
+        """Frozen encoder on clouds ``(..., P, 3)`` (any frame) → positions ``(..., M, 3)``, features ``(..., M, D)``
+        (:meth:`GeometryEncoder.encode`: full precision, no gradients)."""
+        return self.geometry_encoder.encode(points)
 
     def encode_observation(self, points_world: torch.Tensor, T_world_ee: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The frozen encoder on observed clouds in their own EE frames: ``points_world (..., P, 3)`` and the EE poses
         ``T_world_ee (..., 4, 4)`` → scene-node positions in the EE frame ``(..., M, 3)`` and features ``(..., M, D)``.
-        The one place a frame's cloud becomes scene nodes, live or for a cache (``frame_encodings``)."""
-        return self.encode_clouds(transform_points(invert_rigid(T_world_ee), points_world))
+        The one place a frame's cloud becomes scene nodes, live, for a cache (``frame_encodings``) or for the task
+        pool (:meth:`GeometryEncoder.encode_in_frames`)."""
+        return self.geometry_encoder.encode_in_frames(points_world, T_world_ee)
 
     def observation_gripper_features(self, gripper_open: torch.Tensor) -> torch.Tensor:
         """Gripper-node features of observed frames: ``gripper_open (...)`` in {0, 1} → ``(..., G, H)``."""
@@ -294,7 +292,7 @@ class InstantPolicyNetwork(nn.Module):
     def encode_context(
         self,
         demos: DemoTensors,
-        points_world: torch.Tensor,
+        points_world: torch.Tensor | None,
         T_world_ee: torch.Tensor,
         gripper: torch.Tensor,
         scene_geometry: tuple[torch.Tensor, torch.Tensor] | None = None,
@@ -304,7 +302,8 @@ class InstantPolicyNetwork(nn.Module):
 
         Args:
             demos: the demonstrations of every row (:class:`DemoTensors`, batch ``B``).
-            points_world: ``(B, P, 3)`` the live cloud in the world frame.
+            points_world: ``(B, P, 3)`` the live cloud in the world frame; None when ``scene_geometry`` is given
+                and the action graphs do not re-encode the cloud (``reencode_action_clouds`` off).
             T_world_ee: ``(B, 4, 4)`` the current EE pose in the world frame.
             gripper: ``(B,)`` the current gripper state, 1 open, 0 closed.
             scene_geometry: the live cloud's scene nodes in the current EE frame, positions ``(B, M, 3)`` and
@@ -316,10 +315,16 @@ class InstantPolicyNetwork(nn.Module):
         """
         self._check_demos(demos)
         batch, num_demos, demo_length = demos.batch_size, demos.num_demos, demos.num_waypoints
-        self._check_cloud("points_world", points_world, (batch,))
         self._check_tensor("T_world_ee", T_world_ee, (batch, 4, 4))
         self._check_tensor("gripper", gripper, (batch,))
-        points_ee = transform_points(invert_rigid(T_world_ee), points_world)
+        if points_world is None:
+            if scene_geometry is None or (self.config.action_scene_graph and self.config.reencode_action_clouds):
+                raise ValueError("points_world is needed without scene_geometry and when the action graphs re-encode "
+                                 "the live cloud (reencode_action_clouds)")
+            points_ee = None
+        else:
+            self._check_cloud("points_world", points_world, (batch,))
+            points_ee = transform_points(invert_rigid(T_world_ee), points_world)
         if scene_geometry is None:
             scene_geometry = self.encode_clouds(points_ee)
         scene_positions, scene_features = scene_geometry
@@ -473,8 +478,8 @@ class InstantPolicyNetwork(nn.Module):
                 context.batch_size,
                 steps,
                 generator=generator,
-                device=context.points_ee.device,
-                dtype=context.points_ee.dtype,
+                device=context.scene_positions_ee.device,
+                dtype=context.scene_positions_ee.dtype,
                 initial=initial,
                 strength=strength,
             )

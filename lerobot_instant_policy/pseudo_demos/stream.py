@@ -152,6 +152,37 @@ class _TaskFrames:
     live: np.ndarray
 
 
+@dataclass
+class RenderedTask:
+    """One planned task's rendered frames: ``clouds (N·L + S, P, 3)`` world frame, on the stream's device, its ``N · L``
+    context waypoints (demonstration-major) then its ``S`` live frames."""
+
+    frames: _TaskFrames
+    clouds: torch.Tensor
+
+    @property
+    def task_index(self) -> int:
+        return self.frames.planned.task_index
+
+    @property
+    def context_clouds(self) -> torch.Tensor:
+        """``(N, L, P, 3)`` the context waypoints' clouds."""
+        num_demos, num_waypoints = self.frames.chosen.shape
+        return self.clouds[: num_demos * num_waypoints].reshape(num_demos, num_waypoints, *self.clouds.shape[1:])
+
+    @property
+    def live_clouds(self) -> torch.Tensor:
+        """``(S, P, 3)`` the live frames' clouds."""
+        return self.clouds[self.frames.chosen.size:]
+
+    def live_states_and_actions(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """The live frames' EE states ``(S, 8)`` and their next ``horizon`` actions ``(S, T, 8)``, the live
+        demonstration's last action held past its end."""
+        live = self.frames.planned.demos[-1]
+        steps = np.minimum(self.frames.live[:, None] + np.arange(horizon), live.num_frames - 1)
+        return live.state[self.frames.live], live.action[steps]
+
+
 class PseudoTaskStream(torch.utils.data.IterableDataset):
     """An endless stream of training samples from fresh pseudo-tasks (see the module docstring).
 
@@ -225,14 +256,22 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
     def _samples(self, task_indices: list[int]) -> list[dict[str, torch.Tensor]]:
         """Plan the tasks ``task_indices``, render all their clouds in one call, and return their samples in order
         (``samples_per_task`` per task that is not skipped)."""
-        tasks = [frames for frames in map(self._plan, task_indices) if frames is not None]
         samples = []
+        for task in self.render_tasks(task_indices):
+            samples.extend(self._task_samples(task))
+        return samples
+
+    def render_tasks(self, task_indices: list[int]) -> list[RenderedTask]:
+        """Plan the tasks ``task_indices`` and render all their clouds in one call: one :class:`RenderedTask` per
+        task that is not skipped, in order (the skipped ones counted in :attr:`skipped_tasks`)."""
+        tasks = [frames for frames in map(self._plan, task_indices) if frames is not None]
+        rendered = []
         for frames, clouds in zip(tasks, self._render(tasks) if tasks else []):
             if clouds is None:
                 self.skipped_tasks += 1
             else:
-                samples.extend(self._task_samples(frames, clouds))
-        return samples
+                rendered.append(RenderedTask(frames, clouds))
+        return rendered
 
     def _plan(self, task_index: int) -> _TaskFrames | None:
         """Task ``task_index`` planned with ``N + 1`` demonstrations and the frames to render; None (counted as
@@ -285,27 +324,19 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
                                           device=self.device))
         return clouds
 
-    def _task_samples(self, frames: _TaskFrames, clouds: torch.Tensor) -> list[dict[str, torch.Tensor]]:
-        """The samples of one task from its rendered ``clouds (N·L + S, P, 3)``."""
-        config, device = self.config, self.device
-        num_demos, num_waypoints = frames.chosen.shape
-        live = frames.planned.demos[-1]
+    def _task_samples(self, task: RenderedTask) -> list[dict[str, torch.Tensor]]:
+        """The samples of one rendered task."""
+        device = self.device
         context = {
-            CONTEXT_POINTCLOUD_KEY: clouds[: num_demos * num_waypoints].reshape(num_demos, num_waypoints, -1, 3),
-            CONTEXT_T_WORLD_EE_KEY: torch.as_tensor(frames.T_world_ee, device=device),
-            CONTEXT_GRIPPER_OPEN_KEY: torch.as_tensor(frames.gripper_open, device=device),
-            CONTEXT_ID_KEY: torch.tensor(frames.planned.task_index, dtype=torch.int64, device=device),
+            CONTEXT_POINTCLOUD_KEY: task.context_clouds,
+            CONTEXT_T_WORLD_EE_KEY: torch.as_tensor(task.frames.T_world_ee, device=device),
+            CONTEXT_GRIPPER_OPEN_KEY: torch.as_tensor(task.frames.gripper_open, device=device),
+            CONTEXT_ID_KEY: torch.tensor(task.task_index, dtype=torch.int64, device=device),
         }
-        samples = []
-        for index, t in enumerate(frames.live):
-            steps = np.minimum(t + np.arange(config.horizon), live.num_frames - 1)
-            samples.append({
-                POINTCLOUD_KEY: clouds[num_demos * num_waypoints + index],
-                STATE_KEY: torch.as_tensor(live.state[t], device=device),
-                ACTION_KEY: torch.as_tensor(live.action[steps], device=device),
-                **context,
-            })
-        return samples
+        state, actions = task.live_states_and_actions(self.config.horizon)
+        return [{POINTCLOUD_KEY: cloud, STATE_KEY: torch.as_tensor(state[index], device=device),
+                 ACTION_KEY: torch.as_tensor(actions[index], device=device), **context}
+                for index, cloud in enumerate(task.live_clouds)]
 
 
-__all__ = ["PseudoTaskStream", "StreamConfig"]
+__all__ = ["PseudoTaskStream", "RenderedTask", "StreamConfig"]

@@ -145,27 +145,36 @@ def test_inference_benchmark_times_the_mean_of_several_samples(capsys):
     assert "--samples-per-prediction must be positive" in capsys.readouterr().err
 
 
-def test_stream_benchmark_times_the_stream_alone_and_feeding_the_update(capsys, tmp_path):
+def test_stream_and_pool_benchmarks_time_whole_runs_with_every_render_inside(capsys, tmp_path):
+    """Wall time over the run: samples per second are the updated samples over it; the pool's generator process
+    starts inside it (its first tasks' renders are waited for), and its account matches the samples drawn."""
     from lerobot_instant_policy.cli.bench import main
 
     config = tmp_path / "stream.json"
     config.write_text(json.dumps({"seed": 3, "object_pool": ["pb/cube", "pb/duck"]}))
-    assert main(["stream", "--config", str(config), "--batch-size", "2", "--batches", "1", "--samples-per-task", "2",
-                 "--tasks-per-render", "1", "--device", "cpu", "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
-    assert result["device"] == "cpu" and result["samples_per_task"] == 2
-    alone, small = result["stream_alone"], result["presets"]["small"]
-    assert alone["samples_per_s"] > 0 and alone["tasks_per_s"] == pytest.approx(alone["samples_per_s"] / 2)
-    assert (alone["N"], alone["L"]) == (2, 10)  # the small preset's max_demos and num_waypoints
-    assert small["hidden_dim"] == 128 and small["generate_s"] > 0 and small["update_s"] > 0
-    assert 0 < small["generating_share"] < 1
-    assert small["samples_per_s"] == pytest.approx(2 / (small["generate_s"] + small["update_s"]))
+    common = ["--config", str(config), "--batch-size", "2", "--steps", "2", "--samples-per-task", "2",
+              "--tasks-per-render", "1", "--zbuffer", "160", "120", "--device", "cpu", "--json"]
+    assert main(["stream", *common]) == 0
+    stream = json.loads(capsys.readouterr().out)
+    assert stream["source"] == "stream" and stream["steps"] == 2 and stream["hidden_dim"] == 128
+    assert stream["samples_per_s"] == pytest.approx(4 / stream["wall_s"])
+    assert stream["distinct_tasks"] == 2 and 0 < stream["update_share"] < 1  # 2 samples a task, 4 samples
+    assert stream["stream"]["zbuffer"] == "160x120"
+    assert main(["pool", *common, "--min-tasks", "2"]) == 0
+    pool = json.loads(capsys.readouterr().out)
+    assert pool["source"] == "pool" and pool["pool"]["samples"] == 4 and pool["generators"] == 1
+    assert pool["pool"]["waited_s"] > 0 and pool["wall_s"] > pool["pool"]["waited_s"]
+    assert pool["distinct_tasks"] == pool["pool"]["distinct_tasks_used"] >= 2
+    assert pool["fresh_tasks_per_s"] == pytest.approx(pool["distinct_tasks"] / pool["wall_s"])
 
 
 def test_stream_benchmark_refuses_non_positive_sizes(capsys):
     from lerobot_instant_policy.cli.bench import main
 
     with pytest.raises(SystemExit) as exit_info:
-        main(["stream", "--batches", "0"])
+        main(["stream", "--steps", "0"])
     assert exit_info.value.code == 2
     assert "must be positive" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["pool", "--capacity", "4", "--min-tasks", "5"])
+    assert "must not exceed capacity" in capsys.readouterr().err

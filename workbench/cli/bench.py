@@ -1,7 +1,8 @@
 """``python -m workbench.cli.bench`` (from the repository root): the development benchmarks, printed as JSON.
 
 ``encoder``: geometry-encoder clouds per second at 2048 points, batch 1 and 16, both presets, and the first layer's
-farthest-point sampling on both paths. ``data --root DIR --repo-id ID``: milliseconds per training row, LeRobot's
+farthest-point sampling on both paths. ``splat --config CONFIG --setting W H SAMPLES ...``: the stream's splatting
+settings against a dense pybullet rendering, ms per cloud and distances. ``data --root DIR --repo-id ID``: milliseconds per training row, LeRobot's
 delta timestamps against the policy's action table. The benchmarks themselves are :mod:`workbench.benchmarks`; the
 ones a user runs on their own machine (generation, inference, training step, ``lerobot-train``, the envs) are the
 installed ``lerobot-ip-bench``.
@@ -20,7 +21,7 @@ PROG = "python -m workbench.cli.bench"
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROG, description="Development benchmarks that print JSON.")
     commands = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_encoder, _add_data):
+    for add in (_add_encoder, _add_data, _add_splat):
         add(commands)
     return parser
 
@@ -64,6 +65,28 @@ def _run_data(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict
     from ..benchmarks.data import bench_data
 
     return bench_data(args.repo_id, args.root, args.rows, args.horizon, args.repeats)
+
+
+# ---------------------------------------------------------------------------------------------------- splat
+def _add_splat(commands) -> None:
+    splat = commands.add_parser("splat", help="the stream's splatting settings: ms per cloud and distance to pybullet")
+    splat.add_argument("--config", default="configs/generate/stream_bounded.json")
+    splat.add_argument("--setting", nargs=3, type=int, action="append", metavar=("W", "H", "SAMPLES"),
+                       help="z-buffer width, height and surface samples per object (repeatable)")
+    splat.add_argument("--tasks", type=int, default=4)
+    splat.add_argument("--json", action="store_true", help=JSON_HELP)
+    splat.set_defaults(handler=_run_splat)
+
+
+def _run_splat(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    if args.tasks <= 0:
+        parser.error("--tasks must be positive")
+    from lerobot_instant_policy.pseudo_demos.stream import StreamConfig
+
+    from ..benchmarks.splat import bench_splat
+
+    settings = [tuple(setting) for setting in args.setting or [(480, 360, 8192), (240, 180, 4096)]]
+    return bench_splat(StreamConfig.from_generate_config(args.config), settings, args.tasks)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,62 @@
+"""``python -m workbench.cli.standing`` (from the repository root): the command line of :mod:`workbench.standing`.
+
+  run --hours 2.5                                   (here: continue checkpoints/stream/last on the CPU pool, nice)
+  run --device cuda --generators 14 --batch-size 64 --deadline-s 540 --validate-s 150 --out $OUT   (a GPU lease)
+  accept FOLDER                                     (here: keep what a lease brought back)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    parser.add_argument("--standing", type=Path, default=STANDING, help="where the last and best saves live")
+    parser.add_argument("--curve", type=Path, default=CURVE_FILE, help="the scaling curve's JSON (its picture beside)")
+    commands = parser.add_subparsers(dest="command", required=True)
+    one = commands.add_parser("run", help="continue the standing run to a deadline, validate, keep")
+    defaults = StandingConfig()
+    one.add_argument("--hours", type=float, help="the deadline in hours (instead of --deadline-s)")
+    for name in ("work", "out", "start", "stream_config", "device"):
+        one.add_argument(f"--{name.replace('_', '-')}", default=getattr(defaults, name))
+    for name in ("deadline_s", "validate_s", "optimizer_lr"):
+        one.add_argument(f"--{name.replace('_', '-')}", type=float, default=getattr(defaults, name))
+    for name in ("seed", "batch_size", "samples_per_task", "tasks_per_render", "surface_samples", "capacity",
+                 "min_tasks", "generators",
+                 "generator_threads", "train_threads", "save_freq", "log_freq", "nice", "val_tasks",
+                 "val_frames_per_task", "val_workers", "prior_samples", "prior_tasks"):
+        one.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
+    one.add_argument("--lerobot-arg", dest="lerobot_args", action="append", default=[], metavar="FLAG",
+                     help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")
+    brought = commands.add_parser("accept", help="keep a run brought back from a device (save.tar, standing.json)")
+    brought.add_argument("folder", type=Path)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "accept":
+            result = accept(args.folder, args.standing, args.curve)
+        else:
+            options = {key: value for key, value in vars(args).items()
+                       if key not in ("command", "hours", "standing", "curve")}
+            if args.hours is not None:
+                options["deadline_s"] = args.hours * 3600
+            result = run(StandingConfig(**options), args.standing, args.curve)["runs"][-1]
+    except (StandingError, ValueError, FileNotFoundError) as error:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

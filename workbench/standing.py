@@ -1,0 +1,296 @@
+"""The standing training run: one command continues the run from its last save, trains on the rolling pool of encoded
+fresh pseudo-tasks to a wall-clock deadline, validates the last save on the two held-out sets, and leaves it as the
+run's new start, the best save kept apart for shipping, and a point on the scaling curve.
+
+``python -m workbench.cli.standing run --hours 2.5`` (here, on the CPU, under ``nice``), or on a GPU lease
+``python -m workbench.cli.standing run --device cuda --generators 14 --deadline-s 540 --out $OUT`` and then here
+``python -m workbench.cli.standing accept FOLDER``. A run:
+
+1. starts from the last save, ``checkpoints/stream/last/`` (LeRobot's ``pretrained_model/`` and ``training_state/``:
+   weights, optimizer, scheduler, step, the pool's next task), resumed with ``lerobot-ip-train --resume=true``;
+   at the very first start from ``--start`` (a LeRobot step checkpoint, resumed the same way) or else the shipped
+   checkpoint (its weights, a fresh optimizer);
+2. trains with ``lerobot-ip-train --pool`` (:mod:`lerobot_instant_policy.policy.task_pool`) on the stream of
+   ``stream_config`` with the run's seed, LeRobot saving every ``save_freq`` steps, while the two validation sets
+   (``VALIDATION_CONFIGS``: held-out objects moved between demonstrations, or kept in one layout) are generated
+   beside it unless present;
+3. at ``deadline_s − validate_s`` stops training (a kill loses at most the steps since the last save) and takes its
+   last complete save (one with the pool's state, written last), which it validates with ``lerobot-ip-action-error``
+   (K = 4, N = 2, L = 10, ``val_tasks`` × ``val_frames_per_task`` frames) on both sets;
+4. keeps it (:func:`keep`): the save replaces ``checkpoints/stream/last/`` whether or not it is better (a metric may
+   dip before it improves), its weights replace ``checkpoints/stream/best/`` only when closer than the best's to the
+   actions, relative to holding still, on both sets, and its point joins ``docs/scaling_curve.{json,png}``.
+   ``standing.json`` in the save holds every run so far: samples and distinct tasks (this run's and in all), the
+   pool's rates and uses per task, the figures.
+
+With ``--out`` the save and its record are packed into ``OUT`` instead (``save.tar`` and ``standing.json``, two
+files), for ``accept`` to keep here.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import tarfile
+import time
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from .stream_lease import CURVE_FILE, SHIPPED, VALIDATION_CONFIGS, add_curve_point, curve_point, figures
+from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
+
+PROG = "python -m workbench.cli.standing"
+STANDING = Path("checkpoints/stream")
+RECORD = "standing.json"
+SAVE_TAR = "save.tar"
+POOL_STATE = "training_state/task_pool.json"  # written after the rest of a save: its presence marks a complete one
+MODEL_DIR, STATE_DIR = "pretrained_model", "training_state"
+
+
+class StandingError(RuntimeError):
+    """A run that could not train, save or validate (the message says which step and shows its output)."""
+
+
+@dataclass
+class StandingConfig:
+    """One run of the standing training (module docstring). ``prior_samples`` / ``prior_tasks``: what the start
+    (``--start``, before any standing save exists) had already seen. ``lerobot_args``: more ``lerobot-train`` flags."""
+
+    deadline_s: float = 9000.0
+    validate_s: float = 420.0
+    work: str = "outputs/standing"
+    out: str | None = None
+    start: str | None = None
+    stream_config: str = "configs/generate/stream_bounded.json"
+    seed: int = 5000
+    device: str = "cpu"
+    batch_size: int = 8
+    optimizer_lr: float = 2e-4
+    samples_per_task: int = 8
+    tasks_per_render: int = 1
+    surface_samples: int = 4096
+    capacity: int = 1000
+    min_tasks: int = 16
+    generators: int = 1
+    generator_threads: int = 1
+    train_threads: int = 1
+    save_freq: int = 500
+    log_freq: int = 50
+    nice: int = 10
+    val_tasks: int = 24
+    val_frames_per_task: int = 4
+    val_workers: int = 1
+    prior_samples: int = 0
+    prior_tasks: int = 0
+    lerobot_args: list[str] = field(default_factory=list)
+
+    def validate(self) -> None:
+        if not 0 < self.validate_s < self.deadline_s:
+            raise ValueError(f"validate_s must lie in (0, deadline_s = {self.deadline_s}), got {self.validate_s}")
+        for name in ("batch_size", "samples_per_task", "tasks_per_render", "surface_samples", "capacity", "min_tasks",
+                     "generators",
+                     "generator_threads", "train_threads", "save_freq", "log_freq", "val_tasks",
+                     "val_frames_per_task", "val_workers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.optimizer_lr <= 0:
+            raise ValueError(f"optimizer_lr must be positive, got {self.optimizer_lr}")
+
+
+# ---------------------------------------------------------------------------------------------------- saves
+def complete_saves(train_dir: Path) -> list[Path]:
+    """LeRobot's step checkpoints under ``train_dir/checkpoints`` that were written to the end, oldest first."""
+    saves = [path.parent.parent for path in (train_dir / "checkpoints").glob(f"[0-9]*/{POOL_STATE}")]
+    return sorted(saves, key=lambda path: int(path.name))
+
+
+def read_record(save: Path) -> dict:
+    """The ``standing.json`` of a save: ``{"runs": [...]}`` (empty for a save of no standing run)."""
+    path = save / RECORD
+    return json.loads(path.read_text()) if path.is_file() else {"runs": []}
+
+
+def step_of(save: Path) -> int:
+    return int(json.loads((save / STATE_DIR / "training_step.json").read_text())["step"])
+
+
+def start_save(config: StandingConfig, standing: Path = STANDING) -> Path | None:
+    """The save a run resumes: the standing run's last, else ``config.start``; None: the shipped checkpoint's weights
+    with a fresh optimizer."""
+    last = standing / "last"
+    if (last / STATE_DIR).is_dir():
+        return last
+    if config.start:
+        start = Path(config.start)
+        if not (start / MODEL_DIR).is_dir() or not (start / STATE_DIR).is_dir():
+            raise ValueError(f"--start must be a LeRobot step checkpoint (pretrained_model/ and training_state/): "
+                             f"{start}")
+        return start
+    return None
+
+
+def train_command(config: StandingConfig, resume_from: Path | None, train_dir: Path) -> list[str]:
+    stream = [f"--stream.config={config.stream_config}", f"--stream.seed={config.seed}",
+              f"--stream.samples_per_task={config.samples_per_task}",
+              f"--stream.tasks_per_render={config.tasks_per_render}",
+              f"--stream.surface_samples={config.surface_samples}", "--pool",
+              f"--pool.capacity={config.capacity}", f"--pool.min_tasks={config.min_tasks}",
+              f"--pool.generators={config.generators}", f"--pool.generator_threads={config.generator_threads}",
+              f"--pool.device={config.device}"]
+    if resume_from is not None:
+        start = [f"--config_path={resume_from / MODEL_DIR / 'train_config.json'}", "--resume=true"]
+    else:
+        start = [f"--policy.path={SHIPPED}", f"--policy.optimizer_lr={config.optimizer_lr}",
+                 "--policy.push_to_hub=false", f"--batch_size={config.batch_size}", "--steps=100000000",
+                 "--wandb.enable=false", "--num_workers=0"]
+    return [*program("lerobot-ip-train"), *stream, *start, f"--policy.device={config.device}",
+            f"--output_dir={train_dir}", f"--save_freq={config.save_freq}", f"--log_freq={config.log_freq}",
+            *config.lerobot_args]
+
+
+def _stage_resume(save: Path, train_dir: Path) -> Path:
+    """``save`` copied as a step checkpoint of ``train_dir`` (where LeRobot resumes it and saves after it)."""
+    staged = train_dir / "checkpoints" / f"{step_of(save):09d}"
+    for part in (MODEL_DIR, STATE_DIR):
+        shutil.copytree(save / part, staged / part)
+    return staged
+
+
+# ---------------------------------------------------------------------------------------------------- validation
+def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.Popen | None]:
+    """Start generating each validation set missing under ``root`` (None for those already there)."""
+    processes = {}
+    for name, preset in VALIDATION_CONFIGS.items():
+        if (root / name / "meta" / "info.json").is_file():
+            processes[name] = None
+            continue
+        command = program("lerobot-ip-generate") + [
+            "--config", preset, "--out", str(root / name), "--repo-id", f"local/{name}", "--num-tasks",
+            str(config.val_tasks), "--workers", str(config.val_workers), "--no-progress", "--overwrite"]
+        processes[name] = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                           env={**os.environ, "OMP_NUM_THREADS": "1"})
+    return processes
+
+
+def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
+    """``lerobot-ip-action-error`` figures of ``checkpoint`` (a pretrained_model folder) on both sets."""
+    results = {}
+    for name in VALIDATION_CONFIGS:
+        command = program("lerobot-ip-action-error") + [
+            "--policy-path", str(checkpoint), "--root", str(root / name), "--repo-id", f"local/{name}",
+            "--tasks", str(config.val_tasks), "--frames-per-task", str(config.val_frames_per_task), "--K", str(EVAL_K),
+            "--N", str(EVAL_N), "--L", str(EVAL_L), "--no-untrained", "--json", "--device", config.device]
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise StandingError(f"validation on {name} failed: {done.stderr[-2000:]}")
+        results[name] = figures(json_result(done.stdout))
+    return results
+
+
+# ---------------------------------------------------------------------------------------------------- one run
+def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
+    """One run (module docstring); returns its record (what the save's ``standing.json`` holds, last run last)."""
+    config.validate()
+    started = time.monotonic()
+    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    work = Path(config.work)
+    train_dir = work / f"run-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}"
+    start = start_save(config, standing)
+    previous = read_record(start) if start is not None else {"runs": []}
+    resume_from = _stage_resume(start, train_dir) if start is not None else None
+    start_step = step_of(start) if start is not None else 0
+    log_path = train_dir.with_suffix(".log")
+    train_dir.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "OMP_NUM_THREADS": str(config.train_threads), "HF_HUB_OFFLINE": "1"}
+    with open(log_path, "w") as log:
+        training = subprocess.Popen(train_command(config, resume_from, train_dir), stdout=log,
+                                    stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                                    preexec_fn=lambda: os.nice(config.nice))
+    generating = validation_sets(config, work / "validation")
+    stop_at = started + config.deadline_s - config.validate_s
+    while time.monotonic() < stop_at and training.poll() is None:
+        time.sleep(5.0)
+    if training.poll() is None:
+        os.killpg(training.pid, signal.SIGTERM)
+        training.wait(timeout=120)
+    saves = [save for save in complete_saves(train_dir) if save != resume_from]
+    if not saves:
+        raise StandingError(f"no save completed before the deadline; training log:\n{log_path.read_text()[-3000:]}")
+    save = saves[-1]
+    for name, process in generating.items():
+        if process is not None and process.wait() != 0:
+            raise StandingError(f"generating the {name} validation set failed: {process.stderr.read()[-2000:]}")
+    validation = validate(config, save / MODEL_DIR, work / "validation")
+    pool = json.loads((save / POOL_STATE).read_text())["stats"]
+    steps = step_of(save) - start_step
+    samples, tasks = steps * config.batch_size, pool["distinct_tasks_used"]
+    before = previous["runs"][-1] if previous["runs"] else {"samples_total": config.prior_samples,
+                                                            "tasks_total": config.prior_tasks}
+    entry = {
+        "started": started_at, "device": config.device, "start": str(start) if start else str(SHIPPED),
+        "start_step": start_step, "end_step": step_of(save), "samples": samples, "tasks": tasks,
+        "samples_total": before["samples_total"] + samples, "tasks_total": before["tasks_total"] + tasks,
+        "trained_s": round(pool["elapsed_s"], 1), "wall_s": round(time.monotonic() - started, 1),
+        "pool": pool, "validation": validation, "config": asdict(config),
+        "hidden_dim": json.loads((save / MODEL_DIR / "config.json").read_text())["hidden_dim"],
+    }
+    record = {"runs": [*previous["runs"], entry]}
+    (save / RECORD).write_text(json.dumps(record, indent=2))
+    if config.out:
+        out = Path(config.out)
+        out.mkdir(parents=True, exist_ok=True)
+        with tarfile.open(out / SAVE_TAR, "w") as archive:
+            for part in (MODEL_DIR, STATE_DIR, RECORD):
+                archive.add(save / part, arcname=part)
+        (out / RECORD).write_text(json.dumps(record, indent=2))
+    else:
+        keep(save, standing, curve_file)
+    return record
+
+
+# ---------------------------------------------------------------------------------------------------- keeping
+def beats(validation: dict, best: dict | None) -> bool:
+    """Whether ``validation`` is closer than ``best`` (a kept run's figures; None: nothing kept yet) to the actions
+    on both sets, relative to holding still."""
+    return best is None or all(validation[name]["vs_holding_still"] < best[name]["vs_holding_still"]
+                               for name in VALIDATION_CONFIGS)
+
+
+def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
+    """Make ``save`` (a folder with ``pretrained_model/``, ``training_state/`` and ``standing.json``) the run's last
+    save, its weights the best when they beat the best on both sets, and add its point to the curve."""
+    record = read_record(save)
+    entry = record["runs"][-1]
+    last, best = standing / "last", standing / "best"
+    staging = standing / ".last-new"
+    shutil.rmtree(staging, ignore_errors=True)
+    for part in (MODEL_DIR, STATE_DIR):
+        shutil.copytree(save / part, staging / part)
+    shutil.copy2(save / RECORD, staging / RECORD)
+    shutil.rmtree(last, ignore_errors=True)
+    staging.rename(last)  # the old last save stays whole until the new one is complete
+    kept = beats(entry["validation"], read_record(best)["runs"][-1]["validation"] if (best / RECORD).is_file()
+                 else None)
+    if kept:
+        shutil.rmtree(best, ignore_errors=True)
+        shutil.copytree(save / MODEL_DIR, best / MODEL_DIR)
+        (best / RECORD).write_text(json.dumps({"runs": [entry]}, indent=2))
+    point = curve_point(entry["samples_total"], entry["tasks_total"], entry["hidden_dim"], entry["device"],
+                        entry["validation"], entry["config"]["val_tasks"], entry["config"]["val_frames_per_task"],
+                        kept, f"standing run from step {entry['start_step']} to {entry['end_step']}, "
+                              f"{entry['started']}, {entry['device']}")
+    add_curve_point(point, curve_file)
+    return {"best": kept, "point": point}
+
+
+def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
+    """Keep a run brought back from a device (``save.tar`` and ``standing.json`` in ``folder``)."""
+    unpacked = folder / "unpacked"
+    shutil.rmtree(unpacked, ignore_errors=True)
+    with tarfile.open(folder / SAVE_TAR) as archive:
+        archive.extractall(unpacked, filter="data")
+    return keep(unpacked, standing, curve_file)

@@ -1,0 +1,121 @@
+"""The standing training run (``workbench.standing``): which save a run continues, which saves count as complete,
+the last save always replaced, the best only when it beats the best on both sets, a point on the curve per run, a
+device's packed save kept the same way, and bad settings refused."""
+
+from __future__ import annotations
+
+import json
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from workbench.standing import (
+    RECORD,
+    SAVE_TAR,
+    StandingConfig,
+    accept,
+    complete_saves,
+    keep,
+    read_record,
+    start_save,
+    train_command,
+)
+
+
+def _entry(moved: float, one_layout: float, samples_total: int) -> dict:
+    def figures(value):
+        return {"translation_mm": 30 * value, "hold_translation_mm": 30.0, "vs_holding_still": value,
+                "context_gain": 1.3}
+
+    return {"samples_total": samples_total, "tasks_total": samples_total // 30, "hidden_dim": 128, "device": "cpu",
+            "start_step": 0, "end_step": samples_total // 8, "started": "2026-11-27T00:00:00+00:00",
+            "config": {"val_tasks": 24, "val_frames_per_task": 4},
+            "validation": {"moved": figures(moved), "one_layout": figures(one_layout)}}
+
+
+def _save(root: Path, step: int, entries: list[dict] | None = None, complete: bool = True) -> Path:
+    """A LeRobot step checkpoint of a pool run: weights, training state, the pool's state when complete."""
+    save = root / "checkpoints" / f"{step:06d}"
+    (save / "pretrained_model").mkdir(parents=True)
+    (save / "pretrained_model" / "model.safetensors").write_text(f"weights {step}")
+    (save / "training_state").mkdir()
+    (save / "training_state" / "training_step.json").write_text(json.dumps({"step": step}))
+    if complete:
+        (save / "training_state" / "task_pool.json").write_text(json.dumps({"start_task": 0, "stats": {}}))
+    if entries is not None:
+        (save / RECORD).write_text(json.dumps({"runs": entries}))
+    return save
+
+
+def test_only_saves_written_to_the_end_count_and_the_last_one_is_continued(tmp_path):
+    run = tmp_path / "run"
+    _save(run, 500)
+    _save(run, 1000)
+    _save(run, 1500, complete=False)  # killed while saving: no pool state yet
+    assert [save.name for save in complete_saves(run)] == ["000500", "001000"]
+    standing = tmp_path / "standing"
+    assert start_save(StandingConfig(), standing) is None  # the shipped checkpoint, a fresh optimizer
+    assert start_save(StandingConfig(start=str(run / "checkpoints" / "001000")), standing) == run / "checkpoints" / "001000"
+    with pytest.raises(ValueError, match="LeRobot step checkpoint"):
+        start_save(StandingConfig(start=str(tmp_path)), standing)
+    keep(_save(run, 2000, [_entry(0.9, 0.6, 800)]), standing, tmp_path / "curve.json")
+    assert start_save(StandingConfig(start=str(run / "checkpoints" / "001000")), standing) == standing / "last"
+
+
+def test_the_last_save_is_always_replaced_and_the_best_only_when_better_on_both_sets(tmp_path):
+    run, standing, curve = tmp_path / "run", tmp_path / "standing", tmp_path / "curve.json"
+    first = keep(_save(run, 100, [_entry(0.9, 0.6, 800)]), standing, curve)
+    assert first["best"] and (standing / "best" / "pretrained_model" / "model.safetensors").read_text() == "weights 100"
+    worse = keep(_save(run, 200, [_entry(0.95, 0.5, 1600)]), standing, curve)  # worse on moved objects
+    assert not worse["best"]
+    assert (standing / "last" / "pretrained_model" / "model.safetensors").read_text() == "weights 200"
+    assert (standing / "last" / "training_state" / "training_step.json").is_file()
+    assert (standing / "best" / "pretrained_model" / "model.safetensors").read_text() == "weights 100"
+    better = keep(_save(run, 300, [_entry(0.85, 0.55, 2400)]), standing, curve)
+    assert better["best"] and read_record(standing / "best")["runs"][-1]["samples_total"] == 2400
+    assert not (standing / ".last-new").exists()
+    points = json.loads(curve.read_text())["points"]
+    assert [point["samples_total"] for point in points] == [800, 1600, 2400]
+    assert [point["kept"] for point in points] == [True, False, True]
+    assert points[1]["moved_vs_holding_still"] == 0.95 and "step 0 to 200" in points[1]["source"]
+
+
+def test_a_save_brought_back_from_a_device_is_kept_like_a_local_one(tmp_path):
+    save = _save(tmp_path / "device", 700, [_entry(0.8, 0.5, 5600)])
+    out = tmp_path / "out"
+    out.mkdir()
+    with tarfile.open(out / SAVE_TAR, "w") as archive:
+        for part in ("pretrained_model", "training_state", RECORD):
+            archive.add(save / part, arcname=part)
+    result = accept(out, tmp_path / "standing", tmp_path / "curve.json")
+    assert result["best"] and result["point"]["samples_total"] == 5600
+    assert (tmp_path / "standing" / "last" / "pretrained_model" / "model.safetensors").read_text() == "weights 700"
+
+
+def test_a_run_resumes_its_save_and_a_first_run_continues_the_shipped_weights(tmp_path):
+    config = StandingConfig(device="cpu", generators=2, samples_per_task=8)
+    resumed = train_command(config, tmp_path / "000500", tmp_path / "run")
+    assert "--resume=true" in resumed and f"--config_path={tmp_path / '000500' / 'pretrained_model'}/train_config.json" \
+        in resumed
+    assert "--pool" in resumed and "--pool.generators=2" in resumed and "--stream.samples_per_task=8" in resumed
+    fresh = train_command(config, None, tmp_path / "run")
+    assert any(arg.startswith("--policy.path=") for arg in fresh) and "--resume=true" not in fresh
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    ({"deadline_s": 100.0, "validate_s": 200.0}, "validate_s must lie in"),
+    ({"generators": 0}, "generators must be positive"),
+    ({"optimizer_lr": 0.0}, "optimizer_lr must be positive"),
+])
+def test_bad_settings_are_refused(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        StandingConfig(**overrides).validate()
+
+
+def test_the_command_line_refuses_bad_settings_and_writes_nothing(tmp_path, capsys):
+    from workbench.cli.standing import main
+
+    assert main(["--standing", str(tmp_path / "s"), "run", "--deadline-s", "10", "--validate-s", "20"]) == 2
+    assert "validate_s must lie in" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
