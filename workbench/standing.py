@@ -40,11 +40,16 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .stream_lease import CURVE_FILE, SHIPPED, VALIDATION_CONFIGS, add_curve_point, curve_point, figures
 from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
 
 PROG = "python -m workbench.cli.standing"
+SHIPPED = Path("lerobot_instant_policy/assets/checkpoints/instant_policy")
 STANDING = Path("checkpoints/stream")
+CURVE_FILE = Path("docs/scaling_curve.json")
+VALIDATION_CONFIGS = {
+    "moved": "configs/generate/rung4_full_bounded_val.json",
+    "one_layout": "configs/generate/rung4_full_shared_bounded_val.json",
+}
 RECORD = "standing.json"
 SAVE_TAR = "save.tar"
 POOL_STATE = "training_state/task_pool.json"  # written after the rest of a save: its presence marks a complete one
@@ -176,6 +181,14 @@ def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.
     return processes
 
 
+def figures(result: dict) -> dict:
+    """Translation error, its ratio to holding still and the context gain in translation, from
+    ``lerobot-ip-action-error``'s default setting."""
+    own, hold = result["settings"][0]["translation_mm"], result["hold"]["translation_mm"]
+    return {"translation_mm": own, "hold_translation_mm": hold, "vs_holding_still": round(own / hold, 4),
+            "context_gain": result["context_gain"]["translation"]}
+
+
 def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
     """``lerobot-ip-action-error`` figures of ``checkpoint`` (a pretrained_model folder) on both sets."""
     results = {}
@@ -294,3 +307,56 @@ def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FIL
     with tarfile.open(folder / SAVE_TAR) as archive:
         archive.extractall(unpacked, filter="data")
     return keep(unpacked, standing, curve_file)
+
+
+# ---------------------------------------------------------------------------------------------------- the curve
+def curve_point(samples_total: int, tasks_total: int, hidden_dim: int, device: str, validation: dict,
+                val_tasks: int, val_frames_per_task: int, kept: bool, source: str) -> dict:
+    """One point of the scaling curve: what was seen (samples and distinct tasks, every lease so far), the width and
+    where it trained, and the checkpoint's figures on each validation set (``validation``: set → :func:`figures`)."""
+    return {"samples_total": samples_total, "tasks_total": tasks_total, "hidden_dim": hidden_dim, "device": device,
+            "kept": kept, "val_tasks": val_tasks, "val_frames_per_task": val_frames_per_task, "source": source,
+            **{f"{name}_{key}": value for name, result in validation.items() for key, value in result.items()}}
+
+
+def add_curve_point(point: dict, curve_file: Path = CURVE_FILE) -> None:
+    """Append ``point`` to the curve's JSON and redraw its picture beside it (``.png``)."""
+    curve = json.loads(curve_file.read_text()) if curve_file.is_file() else {"points": []}
+    curve["points"].append(point)
+    curve_file.write_text(json.dumps(curve, indent=2))
+    plot_curve(curve["points"], curve_file.with_suffix(".png"))
+
+
+def plot_curve(points: list[dict], png: Path) -> None:
+    """Error against holding still and context gain on both validation sets, against samples seen (log axis), one
+    marker per device and width (CPU points hollow)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for axis, key, label in ((axes[0], "vs_holding_still", "error / holding still (lower is better)"),
+                             (axes[1], "context_gain", "context gain, swap / own error (higher is better)")):
+        for name, color in (("moved", "tab:red"), ("one_layout", "tab:blue")):
+            for (device, width), group in _groups(points).items():
+                chosen = sorted((point["samples_total"], point[f"{name}_{key}"]) for point in group)
+                axis.plot([max(x, 1) for x, _ in chosen], [y for _, y in chosen], "-o", color=color,
+                          markerfacecolor="none" if device == "cpu" else color,
+                          label=f"{name.replace('_', ' ')}, {device}, hidden {width}")
+        axis.set_xscale("log")
+        axis.set_xlabel("samples seen on the stream (log; 0 drawn at 1)")
+        axis.set_ylabel(label)
+        axis.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    figure.suptitle("instant_policy on the pseudo-task stream: held-out pseudo-tasks, held-out objects")
+    figure.tight_layout()
+    figure.savefig(png, dpi=120)
+    plt.close(figure)
+
+
+def _groups(points: list[dict]) -> dict[tuple[str, int], list[dict]]:
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for point in points:
+        groups.setdefault((point["device"], point["hidden_dim"]), []).append(point)
+    return groups

@@ -79,6 +79,7 @@ def test_the_last_save_is_always_replaced_and_the_best_only_when_better_on_both_
     assert [point["samples_total"] for point in points] == [800, 1600, 2400]
     assert [point["kept"] for point in points] == [True, False, True]
     assert points[1]["moved_vs_holding_still"] == 0.95 and "step 0 to 200" in points[1]["source"]
+    assert curve.with_suffix(".png").stat().st_size > 10_000  # the picture is redrawn beside the JSON
 
 
 def test_a_save_brought_back_from_a_device_is_kept_like_a_local_one(tmp_path):
