@@ -21,5 +21,6 @@ from . import video_backend  # noqa: E402
 
 video_backend.install()
 
-# registrations: the ``instant_policy``, ``demo_replay`` and ``do_nothing`` policy configs, the ``bullet_tabletop`` env config
-from . import baselines, configuration_instant_policy, sim  # noqa: E402,F401
+# registrations: the ``instant_policy``, ``demo_replay`` and ``do_nothing`` policy configs, the ``bullet_tabletop`` env
+# config, and the point-cloud batch step that saved preprocessors name (``ip_pointcloud_to_batch``)
+from . import baselines, configuration_instant_policy, processor_instant_policy, sim  # noqa: E402,F401

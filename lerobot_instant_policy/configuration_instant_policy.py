@@ -1,7 +1,7 @@
 """``InstantPolicyConfig``: the configuration of Instant Policy (``--policy.type=instant_policy``).
 
 One flag picks the model: ``--policy.preset=small`` (the model that ships, trained on a CPU) or
-``--policy.preset=paper`` (the paper's model: hidden 1024, 16 heads, ≈118M parameters, its action scene graph with
+``--policy.preset=paper`` (the paper's model: hidden 1024, 16 heads, ≈124M parameters, its action scene graph with
 re-encoded action clouds, 10 encoding frequencies, up to 5 demonstrations per training context). A field left at
 ``None`` takes the preset's value; a value given explicitly wins over the preset. After ``__post_init__`` every field
 is set, so a saved ``config.json`` is complete on its own.
@@ -34,6 +34,7 @@ from .model.bounds import (
     check_range,
 )
 from .model.geometry_encoder import GeometryEncoderConfig, encoder_preset
+from .policy import config_migration
 from .policy.features import (
     check_policy_features,
     contract_input_features,
@@ -52,16 +53,6 @@ DEFAULT_GRIPPER_KEYPOINTS = GRIPPER_KEYPOINTS
 
 # torch.compile's modes ("reduce-overhead" records CUDA graphs on a GPU).
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
-
-# Removed options, each with the values that give what the model now always does. They stay fields, read only so that
-# an older checkpoint's config.json still loads (LeRobot decodes it with draccus, which refuses unknown keys): such a
-# value is dropped (set to None) with a warning; any other value is refused.
-RETIRED_FIELDS: dict[str, tuple] = {
-    "flow_loss_weighting": ("uniform",),  # flow losses weighted alike over the timesteps
-    "noise_draws": (1,),  # one diffusion timestep and noise per sample
-    "context_scene_edges": (False,),  # φ reads no scene nodes
-    "dense_attention": (True, False),  # the dense and the torch-geometric layouts give the same outputs
-}
 
 
 @dataclass(frozen=True)
@@ -107,88 +98,90 @@ class InstantPolicyConfig(PreTrainedConfig):
     Output: ``action (8,)`` absolute EE target poses in the same layout; the network predicts ``horizon`` of them.
 
     Args:
-        preset: ``small`` or ``paper``, the values of every field left at ``None`` (module docstring).
-        num_demos: N, demonstrations given as context at evaluation (1…8).
-        min_demos: the smallest N drawn per training batch.
-        max_demos: the largest N drawn per training batch (the paper: 5; ``small``: 2, the N it is evaluated with,
-            which learned the context faster on CPU budgets).
-        num_waypoints: L, waypoints each demonstration is reduced to (2…32; ``data.waypoints.extract_waypoints``).
-        horizon: T, future actions predicted per step (1…32); action ``j`` is ``j + 1`` frames ahead.
-        inference_steps: K, DDIM denoising steps at inference (1…8).
-        diffusion_train_steps: steps of the training noise schedule (squared cosine).
-        num_scene_nodes: M, scene nodes per local graph; the geometry encoder's number of output centroids.
+        preset: ``"small"`` or ``"paper"``, whose values fill every field left at ``None`` (module docstring;
+            default ``"small"``).
+        num_demos: N, demonstrations given as context at evaluation, 1…8 (default 2).
+        min_demos: the smallest N drawn per training batch, 1…``max_demos`` (default 1).
+        max_demos: the largest N drawn per training batch, ``min_demos``…8 (``None``: the preset's, ``paper`` 5,
+            ``small`` 2, the N the small model is evaluated with).
+        num_waypoints: L, waypoints each demonstration is reduced to, 2…32 (default 10;
+            ``data.waypoints.extract_waypoints``).
+        horizon: T, future actions predicted per step, 1…32 (default 8); action ``j`` is ``j + 1`` frames ahead.
+        inference_steps: K, DDIM denoising steps at inference, 1…8 (default 4).
+        diffusion_train_steps: steps of the training noise schedule (squared cosine), at least ``inference_steps``
+            (default 100).
+        num_scene_nodes: M, scene nodes per local graph; must equal the geometry encoder's number of output centroids
+            (default 16, both encoder presets').
         gripper_keypoints: the G gripper nodes' positions in the EE frame (m), one ``(x, y, z)`` each; at least
-            three not on one line, since each denoising step fits an SE(3) update to them.
-        max_translation: the largest translation (m) of one action step relative to the previous; with
-            ``max_rotation_deg`` (degrees) the scale that normalises the flow the network predicts (paper §3.2).
-        max_rotation_deg: see ``max_translation``.
-        hidden_dim: H, node features; ``num_heads`` must divide it.
-        num_heads: attention heads of every graph-transformer layer.
-        local_layers: graph-transformer layers of σ, on the local graphs.
-        context_layers: layers of φ, demonstrations → current.
-        action_layers: layers of ψ, current → actions.
-        mlp_ratio: the width of each layer's feed-forward block over ``hidden_dim``.
-        num_frequencies: sinusoidal frequencies of the edge and timestep encodings (the paper: 10; ``small``: 4, the
-            best held-out context gain measured on CPU budgets, 1.19–1.23 against 1.15–1.16 at 8,000 steps).
-        encoder_preset: the frozen geometry encoder's architecture.
+            three not on one line, since each denoising step fits an SE(3) update to them (default
+            :data:`DEFAULT_GRIPPER_KEYPOINTS`, six nodes).
+        max_translation: the largest translation (m) of one action step relative to the previous, positive (default
+            0.01); with ``max_rotation_deg`` the scale that normalises the flow the network predicts (paper §3.2).
+        max_rotation_deg: the largest rotation (degrees) of one action step, positive (default 3.0).
+        hidden_dim: H, node features, at least 1 and divisible by ``num_heads`` (``None``: the preset's, ``small``
+            128, ``paper`` 1024).
+        num_heads: attention heads of every graph-transformer layer, at least 1 (``None``: ``small`` 4, ``paper`` 16).
+        local_layers: graph-transformer layers of σ, on the local graphs, at least 1 (``None``: the preset's, 2).
+        context_layers: layers of φ, demonstrations → current, at least 1 (``None``: the preset's, 2).
+        action_layers: layers of ψ, current → actions, at least 1 (``None``: the preset's, 2).
+        mlp_ratio: the width of each layer's feed-forward block over ``hidden_dim``, at least 1 (default 4).
+        num_frequencies: D, sinusoidal frequencies 2⁰π…2^(D−1)π of the edge and timestep encodings, at least 1
+            (``None``: ``small`` 4, ``paper`` 10, the paper's).
+        encoder_preset: the frozen geometry encoder's architecture, ``"small"`` or ``"paper"`` (``None``: the
+            preset's).
         encoder_weights: its weights, a ``.safetensors`` written by ``lerobot-ip-pretrain-encoder`` with its
-            ``.json`` beside it; ``None``: ``lerobot_instant_policy/assets/encoder/<encoder_preset>.safetensors``.
-            Read only when a policy is built from scratch: a checkpoint carries its encoder.
-        pretrained_encoder: ``False`` keeps the frozen encoder randomly initialised (an architecture without
-            pretrained weights, such as ``paper``'s, before ``lerobot-ip-pretrain-encoder`` has trained them).
+            ``.json`` beside it (default ``None``:
+            ``lerobot_instant_policy/assets/encoder/<encoder_preset>.safetensors``). Read only when a policy is built
+            from scratch: a checkpoint carries its encoder.
+        pretrained_encoder: ``False`` keeps the frozen encoder randomly initialised, for an architecture without
+            pretrained weights, such as ``paper``'s before ``lerobot-ip-pretrain-encoder`` has trained them (default
+            ``True``).
         action_scene_graph: the action gripper nodes run σ on the scene seen from their noisy poses (the paper's
-            graph); ``False`` (``small``) lets them see the scene only through the current nodes, so every path from
-            the scene to an action passes φ: a higher held-out context gain on CPU budgets (1.55 against 1.38 at
-            8,000 steps in one object layout).
+            graph); ``False`` lets them see the scene only through the current nodes, so every path from the scene
+            to an action passes φ (``None``: ``small`` false, ``paper`` true).
         reencode_action_clouds: with ``action_scene_graph``, re-encode the live cloud in every action frame at every
             denoising step (the paper's) instead of moving the encoded scene nodes rigidly into the action frames
-            (2.3× faster training; the effect on accuracy is unmeasured).
+            (``None``: ``small`` false, ``paper`` true).
         cache_frame_encodings: compute the frozen encoder's output for every frame of the training dataset once and
             store it beside the dataset (``frame_encodings``; rebuilt when the encoder or the dataset changes), so
-            training steps read scene nodes instead of encoding clouds (1.08× the training speed on a CPU; the same
-            loss).
-        compile_model: σ, φ and ψ's layers through ``torch.compile`` in the training step, sampling eager (1.05–1.21×
-            the training speed on CPUs, after about 100 s of compiling per new input shape; ``lerobot-ip-bench
-            train-step --compare-compile-model``).
-        compile_inference: the same layers compiled for sampling (0.83–0.92× the time per control step on a CPU, after
-            4–64 s of compiling per new N or batch size; ``lerobot-ip-bench inference --compare-compile-inference``).
-        compile_mode: ``torch.compile``'s mode, one of :data:`COMPILE_MODES`.
+            training steps read scene nodes instead of encoding clouds (default ``True``).
+        compile_model: run σ, φ and ψ's layers through ``torch.compile`` in the training step, sampling eager; it
+            compiles again for every new input shape (default ``False``).
+        compile_inference: the same layers compiled for sampling; it compiles again for every new N or batch size
+            (default ``False``).
+        compile_mode: ``torch.compile``'s mode, one of :data:`COMPILE_MODES` (default ``"default"``).
         gripper_flip_probability: of the current gripper state being flipped per training sample (the input only,
-            never the label).
-        gripper_loss_weight: the gripper's binary cross-entropy in the loss, next to the translation and rotation
-            flow errors (0.1 kept the network from reading its demonstrations where 0.01 did not).
-        optimizer_lr: AdamW's peak learning rate (the paper: 1e-5; ``small``: 1e-3). AdamW runs PyTorch's fused kernel
-            on the CPU and CUDA (:class:`~.policy.optimizer.InstantPolicyAdamWConfig`).
-        optimizer_betas: AdamW's betas.
-        optimizer_eps: AdamW's eps.
-        optimizer_weight_decay: AdamW's weight decay.
-        optimizer_grad_clip_norm: gradients are clipped to this norm.
-        scheduler_warmup_steps: linear warmup steps, then cosine decay to zero.
+            never the label), in [0, 1] (default 0.1).
+        gripper_loss_weight: the weight of the gripper's binary cross-entropy in the loss, next to the translation
+            and rotation flow errors, non-negative (default 0.01).
+        optimizer_lr: AdamW's peak learning rate, positive (``None``: ``small`` 1e-3, ``paper`` 1e-5). AdamW runs
+            PyTorch's fused kernel on the CPU and CUDA (:class:`~.policy.optimizer.InstantPolicyAdamWConfig`).
+        optimizer_betas: AdamW's betas (default (0.9, 0.999)).
+        optimizer_eps: AdamW's eps (default 1e-8).
+        optimizer_weight_decay: AdamW's weight decay (default 0.01).
+        optimizer_grad_clip_norm: gradients are clipped to this norm, positive (default 1.0).
+        scheduler_warmup_steps: linear warmup steps, then cosine decay to zero, non-negative (default 100).
         demo_repo_id: the LeRobotDataset whose episodes of the env's task are the context at evaluation (read
-            offline from ``demo_root``).
-        demo_root: its local directory.
-        n_action_steps: actions of each prediction run before predicting again (≤ ``horizon``).
+            offline from ``demo_root``; default ``None``: none, demonstrations are handed in with
+            ``set_demonstrations``). A batch without ``task`` uses its task when it holds one.
+        demo_root: its local directory (default ``None``: LeRobot's cache, ``$HF_LEROBOT_HOME/<demo_repo_id>``).
+        n_action_steps: actions of each prediction run before predicting again, 1…``horizon`` (default 8).
         replan_on_gripper_change: drop the queued actions after one that changes the gripper command, so the policy
-            looks again once the gripper has acted.
+            looks again once the gripper has acted (default ``True``).
         replay_init_strength: s in (0, 1] starts denoising from the demonstrated actions replayed into the live scene
             (yaw-only ICP of the demonstrations' first clouds onto the live one, :func:`~.data.replay_plan.
-            plan_replay`) noised to the last ⌈s·K⌉ DDIM steps, instead of from pure noise (the paper's, ``None``):
-            313/360 suite successes per object at s = 0.125 and K = 8 against 154/360.
+            plan_replay`) noised to the last ⌈s·K⌉ DDIM steps, instead of from pure noise (default ``None``: pure
+            noise, the paper's).
         replay_per_object: plan that replay per object (the grasp follows the grasped object, the release the other
-            one) where two objects move independently.
-        samples_per_prediction: S, each prediction is the mean of S samples from S noise draws (1…64; the paper's:
-            1): S = 8 lowers the held-out translation error by a tenth and leaves the suite's successes (160/360
-            against 154/360), at 3.3× the time per prediction.
-        flow_loss_weighting: removed (flow losses weighted alike over the timesteps); with ``noise_draws``,
-            ``context_scene_edges`` and ``dense_attention``, read only from older checkpoints (:data:`RETIRED_FIELDS`).
-        noise_draws: removed (one diffusion timestep and noise per training sample).
-        context_scene_edges: removed (φ reads no scene nodes).
-        dense_attention: removed (σ, φ and ψ always run in the dense layout, whose outputs the torch-geometric layout
-            gives too).
-        use_amp: (LeRobot's) bfloat16 autocast on the CPU in training and evaluation; off: it measured 0.74× to
-            1.85× the float32 training speed depending on the CPU (``lerobot-ip-bench train-step --compare-amp``),
-            and ``__post_init__`` turns it off on a CPU without fast bfloat16 kernels. On CUDA LeRobot autocasts to
-            float16.
+            one) where two objects move independently (default ``False``).
+        samples_per_prediction: S, each prediction is the mean of S samples from S noise draws, 1…64 (default 1, the
+            paper's); the action passes run on S rows instead of one.
+        use_amp: (LeRobot's) autocast in training and evaluation, bfloat16 on the CPU and float16 on CUDA (default
+            ``False``); ``__post_init__`` turns it off on a CPU without fast bfloat16 kernels, where it slows
+            training down.
+
+    What each default and option measured is in docs/policy.md. A ``config.json`` written before four options were
+    removed loads through :mod:`.policy.config_migration`.
     """
 
     preset: str = "small"
@@ -243,11 +236,6 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     push_to_hub: bool = False
 
-    flow_loss_weighting: str | None = None
-    noise_draws: int | None = None
-    context_scene_edges: bool | None = None
-    dense_attention: bool | None = None
-
     input_features: dict[str, PolicyFeature] | None = field(default_factory=contract_input_features)
     output_features: dict[str, PolicyFeature] | None = field(default_factory=contract_output_features)
     normalization_mapping: dict[str, NormalizationMode] = field(default_factory=identity_normalization)
@@ -261,31 +249,15 @@ class InstantPolicyConfig(PreTrainedConfig):
             if getattr(self, preset_field.name) is None:
                 setattr(self, preset_field.name, getattr(preset, preset_field.name))
         self.gripper_keypoints = [[float(value) for value in point] for point in self.gripper_keypoints]
-        self._drop_retired_fields()
         if self.use_amp and self.device == "cpu" and not cpu_has_fast_bfloat16():
             # as LeRobot's PreTrainedConfig deactivates AMP where a device has none
             logger.warning(
-                "use_amp deactivated: this CPU (%s) has no fast bfloat16 kernels, where autocast measured 0.1x the "
-                "float32 training speed (lerobot-ip-bench train-step --compare-amp)",
+                "use_amp deactivated: this CPU (%s) has no fast bfloat16 kernels, where autocast slows training down "
+                "(docs/benchmarks.md)",
                 torch.backends.cpu.get_cpu_capability(),
             )
             self.use_amp = False
         self._validate()
-
-    def _drop_retired_fields(self) -> None:
-        given = {name: getattr(self, name) for name in RETIRED_FIELDS if getattr(self, name) is not None}
-        refused = {name: value for name, value in given.items() if value not in RETIRED_FIELDS[name]}
-        if refused:
-            raise ValueError(
-                "instant_policy options that were removed, with values that change the model: "
-                + ", ".join(f"{name}={value!r} (only {list(RETIRED_FIELDS[name])} can load)"
-                            for name, value in refused.items())
-            )
-        if given:
-            logger.warning("instant_policy: dropped removed options with the values the model now always has: %s",
-                           ", ".join(f"{name}={value!r}" for name, value in given.items()))
-        for name in given:
-            setattr(self, name, None)
 
     def _validate(self) -> None:
         check_range("num_demos (N)", self.num_demos, SUPPORTED_DEMOS)
@@ -404,6 +376,9 @@ class InstantPolicyConfig(PreTrainedConfig):
     @property
     def reward_delta_indices(self) -> None:
         return None
+
+
+config_migration.install()  # older config.json files, with options since removed, load (policy/config_migration.py)
 
 
 def cpu_has_fast_bfloat16() -> bool:

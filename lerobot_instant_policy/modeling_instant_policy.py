@@ -20,8 +20,6 @@ absolute world-frame EE targets ``(B, T, 8)`` in the layout of docs/design.md §
 gripper 1 open / 0 closed).
 """
 
-from __future__ import annotations
-
 import logging
 from collections import deque
 from dataclasses import dataclass
@@ -53,7 +51,7 @@ from .contract import (
 )
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
-from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
+from .data.demonstrations import Demonstration, DemonstrationSource, open_demo_dataset
 from .data.replay_plan import ReplayPlan, plan_replay
 from .geometry.registration import RegistrationConfig
 from .geometry.rigid_torch import compose, invert_rigid
@@ -371,7 +369,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
     # ------------------------------------------------------------------ checkpoints
     @classmethod
-    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> InstantPolicyPolicy:
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs) -> "InstantPolicyPolicy":
         """LeRobot's ``from_pretrained``, with strict key checking; the frozen encoder comes from the checkpoint's
         tensors, so no encoder weights file is read."""
         return super().from_pretrained(pretrained_name_or_path, load_encoder_weights=False, **kwargs)
@@ -547,9 +545,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return points.float(), state.float()
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
-        handed_in = [task for task, context in self._task_contexts.items() if context.handed_in]
-        only_task = handed_in[0] if len(handed_in) == 1 else None
-        return batch_task_names(batch.get("task"), batch_size, "instant_policy", only_task)
+        """Each row's task: ``batch["task"]``, or without it the one task of the demonstrations (handed in, or the
+        demonstration dataset's); a ``KeyError`` that says what to pass where there are several."""
+        return self._demonstrations.batch_tasks(batch.get("task"), batch_size)
 
 
 def _first_rows(ids: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -1,14 +1,15 @@
 """``InstantPolicyConfig`` (``--policy.type=instant_policy``): registration, presets, validation, CLI parsing, JSON
-round trip; and ``make_instant_policy_pre_post_processors`` (LeRobot's default steps, IDENTITY normalisation)."""
+round trip, older config files; and ``make_instant_policy_pre_post_processors`` (LeRobot's default steps, IDENTITY
+normalisation, the point-cloud batch step)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import draccus
 import pytest
 import torch
-from draccus.utils import ParsingError
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 
 import lerobot_instant_policy  # noqa: F401  (registers the config)
@@ -20,6 +21,7 @@ from lerobot_instant_policy.configuration_instant_policy import (
 )
 from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.model.occupancy import OccupancyNetwork, save_occupancy_network
+from lerobot_instant_policy.policy.config_migration import RETIRED_OPTIONS
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 
 
@@ -49,12 +51,13 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
 def test_defaults_are_the_shipped_model_so_no_flag_trains_it():
     """``lerobot-train --policy.type=instant_policy`` with no policy flag trains the shipped checkpoint's model and
     recipe: its config.json holds every field of the config and nothing else, each with the default's value, but
-    ``type`` (which LeRobot writes beside the fields) and ``pretrained_path`` (which LeRobot sets when it loads one)."""
+    ``type`` (which LeRobot writes beside the fields), ``pretrained_path`` (which LeRobot sets when it loads one) and
+    the removed options as ``null`` (which loading drops)."""
     from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
     defaults = json.loads(json.dumps(draccus.encode(config())))
-    assert set(shipped) - {"type"} == set(defaults)
+    assert set(shipped) - {"type"} - set(RETIRED_OPTIONS) == set(defaults)
     assert shipped["type"] == "instant_policy"
     differing = {key: (shipped[key], value) for key, value in defaults.items()
                  if key != "pretrained_path" and shipped[key] != value}
@@ -74,26 +77,43 @@ def test_the_paper_preset_is_the_papers_graph_and_context():
 
 
 def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
-    """A config.json written before options were removed loads where each removed option has the value the model now
-    always has (dropped with a warning, read back as None), and is refused, naming it, where it had another; saved
-    configs hold them as None."""
-    from lerobot_instant_policy.configuration_instant_policy import RETIRED_FIELDS, SHIPPED_CHECKPOINT
+    """The shipped config.json, written before four options were removed, names them as ``null``: it loads the ways
+    LeRobot and this package load a checkpoint's config, as a config without them, and so does one where each has the
+    value the model kept (dropped with a warning); any other value is refused, naming it. Saving writes none of them."""
+    from lerobot.configs.train import TrainPipelineConfig
 
+    from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
+
+    assert set(RETIRED_OPTIONS) == {"dense_attention", "context_scene_edges", "flow_loss_weighting", "noise_draws"}
+    assert not set(RETIRED_OPTIONS) & {field.name for field in dataclasses.fields(InstantPolicyConfig)}
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
-    assert all(shipped[name] is None for name in RETIRED_FIELDS)
+    assert all(name in shipped and shipped[name] is None for name in RETIRED_OPTIONS)  # the old file, unchanged
+    loaded = PreTrainedConfig.from_pretrained(SHIPPED_CHECKPOINT)
+    assert isinstance(loaded, InstantPolicyConfig) and loaded == InstantPolicyConfig.from_pretrained(SHIPPED_CHECKPOINT)
+    assert {key: value for key, value in shipped.items() if key not in RETIRED_OPTIONS and key != "type"} == json.loads(
+        json.dumps(draccus.encode(loaded)))
+    assert "dropped removed options" not in caplog.text  # null: nothing to say
+    loaded.save_pretrained(tmp_path / "saved")
+    assert not set(RETIRED_OPTIONS) & set(json.loads((tmp_path / "saved" / "config.json").read_text()))
+
     older = {**shipped, "dense_attention": False, "context_scene_edges": False, "flow_loss_weighting": "uniform",
              "noise_draws": 1}
     (tmp_path / "config.json").write_text(json.dumps(older))
-    loaded = PreTrainedConfig.from_pretrained(tmp_path)
-    assert loaded == PreTrainedConfig.from_pretrained(SHIPPED_CHECKPOINT)
+    assert PreTrainedConfig.from_pretrained(tmp_path) == loaded
     assert "dropped removed options" in caplog.text and "noise_draws=1" in caplog.text
-    assert set(RETIRED_FIELDS) == {"dense_attention", "context_scene_edges", "flow_loss_weighting", "noise_draws"}
+    # lerobot-train --policy.path: a CLI override still applies
+    assert PreTrainedConfig.from_pretrained(tmp_path, cli_overrides=["--num_demos=3"]).num_demos == 3
+    # lerobot-train --resume: the policy section of train_config.json (the shipped one names the options with the
+    # values the model kept)
+    train_config = json.loads((SHIPPED_CHECKPOINT / "train_config.json").read_text())
+    assert RETIRED_OPTIONS.keys() <= train_config["policy"].keys()
+    resumed = TrainPipelineConfig.from_pretrained(SHIPPED_CHECKPOINT / "train_config.json")
+    assert isinstance(resumed.policy, InstantPolicyConfig) and resumed.policy.hidden_dim == loaded.hidden_dim
     for name, value in (("noise_draws", 4), ("flow_loss_weighting", "noise"), ("context_scene_edges", True)):
         (tmp_path / "config.json").write_text(json.dumps({**older, name: value}))
-        with pytest.raises(ParsingError) as refusal:  # draccus's, raised from the config's ValueError
+        with pytest.raises(ValueError, match=f"options that were removed, with values that change the model: "
+                                             f"{name}={value!r}"):
             PreTrainedConfig.from_pretrained(tmp_path)
-        assert f"options that were removed, with values that change the model: {name}={value!r}" in str(
-            refusal.value.__cause__)
 
 
 @pytest.mark.parametrize("fast_bfloat16", [True, False])
@@ -274,16 +294,15 @@ def test_processors_are_lerobots_default_steps_and_leave_values_unchanged(tmp_pa
     cfg = config()
     preprocessor, postprocessor = make_instant_policy_pre_post_processors(cfg)
     names = [type(step).__name__ for step in preprocessor.steps]
-    assert names == ["RenameObservationsProcessorStep", "AddBatchDimensionProcessorStep", "DeviceProcessorStep",
-                     "NormalizerProcessorStep"]
+    assert names == ["RenameObservationsProcessorStep", "AddBatchDimensionProcessorStep",
+                     "AddPointCloudBatchDimensionStep", "DeviceProcessorStep", "NormalizerProcessorStep"]
     assert [type(step).__name__ for step in postprocessor.steps] == ["UnnormalizerProcessorStep", "DeviceProcessorStep"]
     cloud = torch.randn(2048, 3)
     state = torch.tensor([0.5, 0.1, 0.3, 0.0, 0.0, 0.0, 1.0, 1.0])
     batch = preprocessor({POINTCLOUD_KEY: cloud, STATE_KEY: state, ACTION_KEY: state.clone(), "task": "lift"})
-    # LeRobot's batch step adds a batch dimension to the 1-D state only: an unbatched (P, 3) cloud passes as it is,
-    # so the policy must accept it (batched env observations arrive as (B, P, 3) already)
-    assert batch[STATE_KEY].shape == (1, 8) and batch[POINTCLOUD_KEY].shape == (2048, 3)
-    torch.testing.assert_close(batch[POINTCLOUD_KEY], cloud, rtol=0, atol=0)
+    # LeRobot's batch step gives the 1-D state its batch dimension, ours the (P, 3) cloud
+    assert batch[STATE_KEY].shape == (1, 8) and batch[POINTCLOUD_KEY].shape == (1, 2048, 3)
+    torch.testing.assert_close(batch[POINTCLOUD_KEY][0], cloud, rtol=0, atol=0)
     torch.testing.assert_close(batch[STATE_KEY][0], state, rtol=0, atol=0)
     action = torch.randn(1, 8)
     torch.testing.assert_close(postprocessor(action), action, rtol=0, atol=0)
@@ -295,4 +314,4 @@ def test_processors_are_lerobots_default_steps_and_leave_values_unchanged(tmp_pa
     loaded, _ = make_pre_post_processors(cfg, pretrained_path=str(tmp_path))
     assert [type(step).__name__ for step in loaded.steps] == names
     again = loaded({POINTCLOUD_KEY: cloud, STATE_KEY: state, ACTION_KEY: state.clone(), "task": "lift"})
-    torch.testing.assert_close(again[POINTCLOUD_KEY], cloud, rtol=0, atol=0)
+    torch.testing.assert_close(again[POINTCLOUD_KEY][0], cloud, rtol=0, atol=0)

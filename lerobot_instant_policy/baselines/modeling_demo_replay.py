@@ -6,8 +6,6 @@ demonstrations of its task and plan the replay of the one that fits the current 
 is repeated.
 """
 
-from __future__ import annotations
-
 import logging
 
 import numpy as np
@@ -16,14 +14,15 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
 from ..contract import POINTCLOUD_KEY, STATE_KEY
-from ..data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
+from ..data.demonstrations import Demonstration, DemonstrationSource
 from ..data.replay_plan import ReplayPlan, plan_replay
 from .configuration_demo_replay import DemoReplayConfig
+from .untrained import ParameterFreePolicyMixin
 
 logger = logging.getLogger(__name__)
 
 
-class DemoReplayPolicy(PreTrainedPolicy):
+class DemoReplayPolicy(ParameterFreePolicyMixin, PreTrainedPolicy):
     """Registration + replay of a demonstration; no trainable parameters (see ``DemoReplayConfig``)."""
 
     config_class = DemoReplayConfig
@@ -100,9 +99,9 @@ class DemoReplayPolicy(PreTrainedPolicy):
             )
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
-        known = self._demonstrations.tasks
-        only_task = known[0] if len(known) == 1 else None
-        return batch_task_names(batch.get("task"), batch_size, "demo_replay", only_task)
+        """Each row's task: ``batch["task"]``, or without it the one task of the demonstrations (handed in, or the
+        demonstration dataset's); a ``KeyError`` that says what to pass where there are several."""
+        return self._demonstrations.batch_tasks(batch.get("task"), batch_size)
 
     def _plan(self, task: str, cloud_now: np.ndarray) -> ReplayPlan:
         """Register every demonstration of ``task`` onto ``cloud_now (P, 3)``; plan the best one's actions."""

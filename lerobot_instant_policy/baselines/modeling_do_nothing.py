@@ -5,17 +5,16 @@ Every step it commands the pose the EE is at and the gripper state it has: ``act
 which the env reads as the gripper command). Its success rate is what a task gives for free.
 """
 
-from __future__ import annotations
-
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor
 
 from ..contract import STATE_KEY
 from .configuration_do_nothing import DoNothingConfig
+from .untrained import ParameterFreePolicyMixin
 
 
-class DoNothingPolicy(PreTrainedPolicy):
+class DoNothingPolicy(ParameterFreePolicyMixin, PreTrainedPolicy):
     """Hold the current EE pose and gripper state; no parameters, nothing to train (see ``DoNothingConfig``)."""
 
     config_class = DoNothingConfig

@@ -6,8 +6,6 @@ Every step, for every batch row: the scripted policy of the row's ``task`` (LeRo
 from ``observation.state (8,)``; the env maps that target back to the same 4-D action.
 """
 
-from __future__ import annotations
-
 import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
@@ -17,9 +15,10 @@ from ..contract import STATE_KEY
 from ..data.demonstrations import batch_task_names
 from ..sim.metaworld.expert import expert_target, scripted_policy
 from .configuration_metaworld_expert import ENVIRONMENT_STATE_KEY, MetaworldExpertConfig
+from .untrained import ParameterFreePolicyMixin
 
 
-class MetaworldExpertPolicy(PreTrainedPolicy):
+class MetaworldExpertPolicy(ParameterFreePolicyMixin, PreTrainedPolicy):
     """MetaWorld's scripted expert (see ``MetaworldExpertConfig``); no parameters, nothing to train."""
 
     config_class = MetaworldExpertConfig
@@ -54,7 +53,8 @@ class MetaworldExpertPolicy(PreTrainedPolicy):
                                f"keys {sorted(batch)}")
         state = batch[STATE_KEY].detach().cpu().numpy()
         environment_state = batch[ENVIRONMENT_STATE_KEY].detach().cpu().numpy()
-        tasks = batch_task_names(batch.get("task"), len(state), self.name, None)
+        tasks = batch_task_names(batch.get("task"), len(state), self.name, None, "; each a MetaWorld v3 task name such as "
+                                 "'reach-v3'")
         targets = [expert_target(self.expert(task), row_state, row_ee, self.config.action_scale)
                    for task, row_state, row_ee in zip(tasks, environment_state, state, strict=True)]
         return torch.as_tensor(np.stack(targets), dtype=torch.float32, device=batch[STATE_KEY].device)

@@ -1,12 +1,14 @@
-"""Pre/post-processors of ``do_nothing``: LeRobot's default steps (rename, batch, device, identity normalisation)."""
+"""Pre/post-processors of ``do_nothing``: LeRobot's default steps (rename, batch, device, identity normalisation),
+and an unbatched point cloud given its batch dimension (:mod:`..policy.processors`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import torch
-from lerobot.processor import PolicyAction, PolicyProcessorPipeline, make_default_pre_post_processors
+from lerobot.processor import PolicyAction, PolicyProcessorPipeline
 
+from ..policy.processors import make_point_cloud_policy_processors
 from .configuration_do_nothing import DoNothingConfig
 
 
@@ -17,6 +19,6 @@ def make_do_nothing_pre_post_processors(
     PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
-    """LeRobot's default pipelines; the config's ``normalization_mapping`` is IDENTITY, so the state reaches the
-    policy and its copy reaches the env unchanged (metres, world frame)."""
-    return make_default_pre_post_processors(config, dataset_stats)
+    """LeRobot's default pipelines with the point-cloud batch step; the config's ``normalization_mapping`` is
+    IDENTITY, so the state reaches the policy and its copy reaches the env unchanged (metres, world frame)."""
+    return make_point_cloud_policy_processors(config, dataset_stats)

@@ -126,8 +126,11 @@ class DemonstrationSource:
         self.policy, self.repo_id, self.num_demos = policy, repo_id, num_demos
         self.root = demo_dataset_root(repo_id, root) if repo_id is not None else None
         self._by_task: dict[str, list[Demonstration]] = {}
+        self._handed_in: list[str] = []
+        self._dataset_tasks: list[str] = []
         if repo_id is not None:
-            open_demo_dataset(repo_id, self.root)
+            dataset = open_demo_dataset(repo_id, self.root)
+            self._dataset_tasks = sorted(str(name) for name in dataset.meta.tasks.index)
 
     def hand_in(self, demonstrations: list[Demonstration]) -> str:
         """Use ``demonstrations`` (all of one task) for their task from now on; returns the task."""
@@ -136,6 +139,7 @@ class DemonstrationSource:
             raise DemonstrationError(f"set_demonstrations takes demonstrations of one task, got tasks {sorted(tasks)}")
         task = tasks.pop()
         self._by_task[task] = list(demonstrations)
+        self._handed_in = [*(name for name in self._handed_in if name != task), task]
         return task
 
     def get(self, task: str) -> list[Demonstration]:
@@ -154,14 +158,34 @@ class DemonstrationSource:
         """The tasks whose demonstrations were handed in or read so far."""
         return list(self._by_task)
 
+    @property
+    def default_task(self) -> str | None:
+        """The task of a batch that names none: the task handed in when demonstrations of one task were, else the
+        configured dataset's task when it holds one; ``None`` where that leaves several or none."""
+        candidates = self._handed_in or self._dataset_tasks
+        return candidates[0] if len(candidates) == 1 else None
 
-def batch_task_names(tasks, batch_size: int, policy: str, only_task: str | None) -> list[str]:
+    def batch_tasks(self, tasks, batch_size: int) -> list[str]:
+        """The task of every batch row (:func:`batch_task_names` with :attr:`default_task`)."""
+        if self._handed_in:
+            known = f"; demonstrations of the tasks {sorted(self._handed_in)} were handed in"
+        elif self.repo_id is not None:
+            known = f"; the demonstration dataset at {self.root} has the tasks {self._dataset_tasks}"
+        else:
+            known = ("; or give demonstrations of one task (set_demonstrations(), or --policy.demo_repo_id and "
+                     "--policy.demo_root naming a dataset of one task)")
+        return batch_task_names(tasks, batch_size, self.policy, self.default_task, known)
+
+
+def batch_task_names(tasks, batch_size: int, policy: str, default_task: str | None, known: str = "") -> list[str]:
     """The task of every row of a batch: ``tasks`` is ``batch.get("task")`` (one string for all rows, or one per
-    row); when it is missing every row gets ``only_task``, and without one either a ``KeyError`` says what is needed."""
+    row); when it is missing every row gets ``default_task``, and without one a ``KeyError`` says what to pass
+    (``known`` ends its message: the tasks the policy could have used)."""
     if tasks is None:
-        if only_task is not None:
-            return [only_task] * batch_size
-        raise KeyError(f"{policy} needs the task string of every batch row in batch['task']")
+        if default_task is not None:
+            return [default_task] * batch_size
+        raise KeyError(f"{policy} needs the task of its batch rows: pass batch['task'], one task string for every row "
+                       f"or a list of one per row (lerobot-eval passes the env's task){known}")
     tasks = [tasks] * batch_size if isinstance(tasks, str) else list(tasks)
     if len(tasks) != batch_size:
         raise ValueError(f"batch['task'] has {len(tasks)} entries for a batch of {batch_size}")

@@ -1,8 +1,8 @@
 """Farthest-point sampling and nearest-centroid grouping in plain torch (no pyg-lib / torch-cluster).
 
 Every operation works per cloud on a batch ``(B, P, 3)``, so its cost grows linearly with the batch. On CPU,
-float32 farthest-point sampling runs the same exact greedy algorithm in ``fpsample`` (C++), about 6× faster than
-the torch loop and with the same indices (tested); the torch loop serves other dtypes and devices.
+float32 farthest-point sampling runs the same exact greedy algorithm in ``fpsample`` (C++), faster than the torch
+loop (docs/benchmarks.md) and with the same indices (tested); the torch loop serves other dtypes and devices.
 """
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
 """What the LeRobot policy (``configuration_instant_policy``, ``modeling_instant_policy``) is built from besides the
-network: its input and output features (``features``), the optimizer (``optimizer``), the frozen encoder's per-frame
-cache of a training dataset (``frame_encodings``) and the demonstrations' path to the network (``context_encoder``)."""
+network: its input and output features (``features``), the pre/post-processors' steps (``processors``), the loading of
+older config files (``config_migration``), the optimizer (``optimizer``), the frozen encoder's per-frame cache of a
+training dataset (``frame_encodings``) and the demonstrations' path to the network (``context_encoder``)."""

@@ -3,8 +3,7 @@
 The geometry encoder never trains, so what it makes of a frame's cloud (scene-node positions ``(M, 3)`` in the
 frame's own EE frame and features ``(M, D)``) is the same at every step of every run. Training without this cache
 re-encodes the live cloud of every batch row at every step, and the waypoints of every context episode once per
-run; with it, a training step only reads rows (on a GPU, farthest-point sampling inside the encoder was 58% of a
-step without it).
+run; with it, a training step only reads rows (what that saves on a CPU and a GPU: docs/benchmarks.md).
 
 Layout, under the dataset root::
 

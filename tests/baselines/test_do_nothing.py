@@ -56,7 +56,8 @@ def test_registered_and_resolved_by_lerobot_factories(monkeypatch):
     preprocessor, postprocessor = make_pre_post_processors(config)
     assert len(calls) == 1 and calls[0][0] is config
     assert [type(step).__name__ for step in preprocessor.steps] == [
-        "RenameObservationsProcessorStep", "AddBatchDimensionProcessorStep", "DeviceProcessorStep", "NormalizerProcessorStep"
+        "RenameObservationsProcessorStep", "AddBatchDimensionProcessorStep", "AddPointCloudBatchDimensionStep",
+        "DeviceProcessorStep", "NormalizerProcessorStep"
     ]
 
     policy = DoNothingPolicy(config)
