@@ -22,7 +22,7 @@ from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.evaluation import action_error as ae
 
 TRAIN = Path(sys.executable).parent / "lerobot-train"
-PRESETS = Path(__file__).resolve().parents[1] / "configs" / "generate"
+PRESETS = Path(__file__).resolve().parents[1] / "workbench" / "configs" / "generate"  # the ladder's presets
 STEPS = 2000
 
 
@@ -44,8 +44,8 @@ def test_a_short_rung1_run_reads_its_demonstrations(tmp_path):
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=3600)
     assert result.returncode == 0, result.stderr[-4000:]
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
-    measured = ae.action_error(checkpoint, tmp_path / "val", tasks=12, frames_per_task=4, seed=0, ks=[4], ns=[2],
-                               ls=[10], untrained=False, repo_id="local/reach_val")
+    measured = ae.action_error(checkpoint, tmp_path / "val", tasks=12, frames_per_task=4, seed=0, k=4, n=2, l=10,
+                               untrained=False, repo_id="local/reach_val")
     own, hold = measured["settings"][0]["translation_mm"], measured["hold"]["translation_mm"]
     assert measured["context_gain"]["translation"] > 1.3, measured
     assert own < hold, measured

@@ -93,7 +93,7 @@ class TrainRoundsConfig:
     the objects from their first demonstration's layout (``DemoConfig.layout_shift``: 0 one layout, 1 an independent
     draw, the paper's setting), for a curriculum that grows the moves; None leaves the generation config's.
     Validation: ``val_tasks`` × ``val_demos_per_task`` held-out pseudo-tasks from ``val_seed`` (with
-    ``family`` reach and the defaults, the pseudo-tasks of ``configs/generate/rung1_reach_val.json``).
+    ``family`` reach and the defaults, the pseudo-tasks of ``workbench/configs/generate/rung1_reach_val.json``).
 
     Training: ``steps_per_round`` optimiser steps of ``batch_size`` per round, ``checkpoints_per_round`` checkpoints
     each (the loss curve's points), ``num_workers`` data-loader processes, on ``device``. ``start``: ``fresh`` (a new

@@ -3,7 +3,8 @@ of figures.
 
 ``generation`` (pseudo-demonstration rendering, end-to-end generation and the shard merges), ``env``
 (``bullet_tabletop`` steps), ``metaworld`` (LeRobot's MetaWorld env with clouds), ``policy`` (``instant_policy``
-inference and training step), ``lerobot_train`` (``lerobot-train`` itself, end to end) and ``variants`` (one setting
-on and off in alternation, and their ratio). ``lerobot-ip-bench`` is their command line. The repository's
-development benchmarks (the geometry encoder alone, a training row's data) live in ``workbench/benchmarks``.
+inference and training step, one setting at a time) and ``stream`` (training on the pseudo-task stream and the pool).
+``lerobot-ip-bench`` is their command line. The repository's development benchmarks (the geometry encoder alone, a
+training row's data, ``lerobot-train`` end to end, two settings compared in alternation) live in
+``workbench/benchmarks``.
 """

@@ -2,8 +2,8 @@
 
 Inputs are synthetic (random clouds of 2048 points, random EE poses): speed does not depend on what the points
 show. The geometry encoder is randomly initialised when the preset has no shipped weights (``paper``), which
-changes no timing. :func:`inference_benchmark` and :func:`train_step_benchmark` run one benchmark with settings, or
-compare one setting on and off (:mod:`.variants`).
+changes no timing. Each benchmark runs one setting (its options and config overrides); the repository's comparisons
+of two settings in alternation are ``python -m workbench.cli.bench inference|train-step --compare-*``.
 """
 
 from __future__ import annotations
@@ -19,18 +19,7 @@ from ..configuration_instant_policy import InstantPolicyConfig
 from ..contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from ..data.context_bank import ContextBank, EpisodeWaypoints
 from ..data.demonstrations import Demonstration
-from .variants import run_or_compare
 
-#: The settings :func:`inference_benchmark` compares, each with the names of its True and False variants.
-INFERENCE_COMPARISONS = {"dense_attention": ("dense", "reference"), "compile_inference": ("compiled", "eager")}
-#: The settings :func:`train_step_benchmark` compares, each with the names of its True and False variants.
-TRAIN_STEP_COMPARISONS = {
-    "dense_attention": ("dense", "reference"),
-    "frame_cache": ("cached", "live"),
-    "use_amp": ("amp", "float32"),
-    "fused_adamw": ("fused", "loop"),
-    "compile_model": ("compiled", "eager"),
-}
 #: Episodes in the context bank of :func:`bench_train_step`.
 TRAIN_STEP_EPISODES = 8
 #: The EE state of every context waypoint there: at the origin, identity orientation, gripper open.
@@ -232,27 +221,3 @@ def _frame_encodings(policy, bank: ContextBank, batch: dict):
     positions, features = policy.network.encode_observation(points.to(config.device), T_world_ee)
     return FrameEncodings(None, positions.cpu().numpy(), features.cpu().numpy())
 
-
-def inference_benchmark(preset: str = "small", repeats: int = 5, policy_path: str | None = None,
-                        compare: str | None = None, **settings) -> dict:
-    """:func:`bench_inference` with ``settings`` (its options and config overrides, e.g. ``dense_attention``,
-    ``compile_inference``);
-    with ``compare`` (a key of :data:`INFERENCE_COMPARISONS`) that setting on and off in alternation, and the ratio
-    of their ``ms_per_control_step``."""
-
-    def run(**kwargs) -> dict:
-        return bench_inference(preset, repeats=repeats, policy_path=policy_path, **kwargs)
-
-    return run_or_compare(run, "ms_per_control_step", settings, compare, INFERENCE_COMPARISONS)
-
-
-def train_step_benchmark(preset: str = "small", batch_size: int = 8, repeats: int = 5, compare: str | None = None,
-                         **settings) -> dict:
-    """:func:`bench_train_step` with ``settings`` (its options and config overrides, e.g. ``frame_cache``,
-    ``use_amp``, ``dense_attention``); with ``compare`` (a key of :data:`TRAIN_STEP_COMPARISONS`) that setting on and off
-    in alternation, and the ratio of their ``samples_per_s``."""
-
-    def run(**kwargs) -> dict:
-        return bench_train_step(preset, batch_size=batch_size, repeats=repeats, **kwargs)
-
-    return run_or_compare(run, "samples_per_s", settings, compare, TRAIN_STEP_COMPARISONS)

@@ -1,6 +1,7 @@
 """``lerobot-ip-action-error``: the command line of :mod:`lerobot_instant_policy.evaluation.action_error` (offline
-action error of an ``instant_policy`` checkpoint on held-out pseudo-tasks as K, N and L vary, with the hold-still,
-untrained and context-swap references); prints JSON."""
+action error of an ``instant_policy`` checkpoint on held-out pseudo-tasks at one setting of K, N and L, with the
+hold-still, untrained and context-swap references); prints JSON. The repository's sweep over several settings is
+``python -m workbench.cli.action_error_sweep`` in a clone."""
 
 from __future__ import annotations
 
@@ -16,31 +17,30 @@ from ..evaluation.checkpoints import EvaluationError
 PROG = "lerobot-ip-action-error"
 
 
-def _int_list(text: str) -> list[int]:
+def _one_int(text: str) -> int:
+    """One integer; a list (the sweep's ``1,2,4,8``) is refused with where the sweep lives."""
     try:
-        values = [int(part) for part in text.split(",") if part.strip()]
+        return int(text)
     except ValueError as error:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from error
-    if not values:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
-    return values
+        hint = " (several settings: python -m workbench.cli.action_error_sweep, in a clone)" if "," in text else ""
+        raise argparse.ArgumentTypeError(f"expected one integer, got {text!r}{hint}") from error
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=PROG, description="Offline action error of an instant_policy checkpoint on held-out pseudo-tasks, "
-        "varying K (denoising steps), N (demonstrations) and L (waypoints) one at a time; prints JSON.")
+        prog=PROG, description="Offline action error of an instant_policy checkpoint on held-out pseudo-tasks at one "
+        "setting of K (denoising steps), N (demonstrations) and L (waypoints), against holding still and another "
+        "task's demonstrations; prints JSON.")
     parser.add_argument("--policy-path", required=True, help="a pretrained_model directory of instant_policy")
     parser.add_argument("--root", required=True, help="held-out pseudo-demonstration dataset (lerobot-ip-generate)")
     parser.add_argument("--repo-id", help="its repo id (default: local/<root name>)")
     parser.add_argument("--tasks", type=int, default=12, help="pseudo-tasks evaluated, the first ones (default 12)")
     parser.add_argument("--frames-per-task", type=int, default=4, help="frames of each live episode (default 4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the frames and of the DDIM noise")
-    parser.add_argument("--K", type=_int_list, default=[1, 2, 4, 8], help="denoising steps, e.g. 1,2,4,8")
-    parser.add_argument("--N", type=_int_list, default=[1, 2, 3], help="context demonstrations, e.g. 1,2,3")
-    parser.add_argument("--L", type=_int_list, default=[2, 5, 10, 15], help="waypoints per demonstration")
-    parser.add_argument("--default", type=_int_list, default=[DEFAULT_K, DEFAULT_N, DEFAULT_L],
-                        help="the K,N,L held while another varies (default 4,2,10)")
+    parser.add_argument("--K", type=_one_int, default=DEFAULT_K, help=f"denoising steps (default {DEFAULT_K})")
+    parser.add_argument("--N", type=_one_int, default=DEFAULT_N, help=f"context demonstrations (default {DEFAULT_N})")
+    parser.add_argument("--L", type=_one_int, default=DEFAULT_L,
+                        help=f"waypoints per demonstration (default {DEFAULT_L})")
     parser.add_argument("--samples-per-prediction", type=int,
                         help="predict the mean of this many samples (the policy's samples_per_prediction; default: "
                              "the checkpoint's)")
@@ -52,12 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if len(args.default) != 3:
-        print(f"{PROG}: error: --default takes K,N,L, got {args.default}", file=sys.stderr)
-        return 2
     try:
         result = action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed, args.K,
-                              args.N, args.L, tuple(args.default), not args.no_untrained, args.repo_id, args.device,
+                              args.N, args.L, not args.no_untrained, args.repo_id, args.device,
                               args.samples_per_prediction)
     except (ActionErrorError, EvaluationError, DemonstrationError, FileNotFoundError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)

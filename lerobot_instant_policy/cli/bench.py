@@ -11,20 +11,20 @@ per second with clouds every step and every ``--pointcloud-every`` steps, one cl
 ``lerobot-ip-bench inference --preset small|paper``: ``instant_policy`` milliseconds per control step (K=4, N=2,
 L=10, T=8, 2048 points, batch 1, demo context cached). ``lerobot-ip-bench train-step --preset small|paper``:
 training samples per second and peak RSS, with the frames' scene nodes read from frame encodings as
-``lerobot-train`` does (``--frame-cache false``: encoded live; ``--compare-frame-cache``: both, and their ratio).
-Both take ``--dense-attention true|false`` (σ and ψ in the dense layout or
-the torch-geometric reference layers) and ``--compare-dense-attention``, which times both in alternation in one run
-and reports their ratio; ``inference`` also ``--compile-inference true|false`` (σ, φ and ψ through ``torch.compile``
-for sampling) and ``--compare-compile-inference``; ``train-step`` also ``--compile-model true|false`` (σ, φ and ψ
-through ``torch.compile`` for the training step) and ``--compare-compile-model``; both report the compiling as
-``warmup_s``.
-``lerobot-ip-bench lerobot-train --root DIR``: ``lerobot-train``'s own samples per second on a dataset, end to end
-(data loader, LeRobot's loop, the update), for each ``--num-workers`` and ``--omp-wait-policy`` in alternation.
+``lerobot-train`` does (``--frame-cache false``: encoded live). Both time one setting: ``--dense-attention
+true|false`` (σ and ψ in the dense layout or the torch-geometric reference layers), the model variant flags
+(``--reencode-action-clouds``, ``--action-scene-graph``, ``--num-frequencies``); ``inference`` also
+``--compile-inference true|false`` (σ, φ and ψ through ``torch.compile`` for sampling), ``train-step`` also
+``--compile-model true|false`` (the same for the training step), ``--amp`` and ``--fused-adamw``; both report the
+compiling as ``warmup_s``.
 ``lerobot-ip-bench stream|pool --config CONFIG``: training on fresh pseudo-tasks from the stream (rendered in the
 update's process) or from the rolling pool of encoded tasks (``--generators`` processes): samples and fresh tasks per
 second by wall time over the whole run, every render inside it, and the pool's uses per task (``benchmarks.stream``).
 The benchmarks themselves are :mod:`lerobot_instant_policy.benchmarks`. The repository's development benchmarks
-(the geometry encoder alone, a training row's data) are ``python -m workbench.cli.bench`` in a clone, not installed.
+(the geometry encoder alone, a training row's data, ``lerobot-train`` end to end, and two settings of ``inference``
+or ``train-step`` timed in alternation with their ratio, ``--compare-*``) are ``python -m workbench.cli.bench`` in a
+clone, not installed; it builds on this module's parsers (:func:`add_inference_arguments`,
+:func:`add_train_step_arguments`) and :func:`run`.
 """
 
 from __future__ import annotations
@@ -38,22 +38,12 @@ import sys
 # again, and should not pay for torch and the policy.
 
 JSON_HELP = "print JSON only (the default output is JSON too)"
-#: ``--compare-*`` flags (their argparse names) of ``inference`` and ``train-step``, and the setting each compares.
-INFERENCE_COMPARE_FLAGS = {"compare_dense_attention": "dense_attention", "compare_compile_inference": "compile_inference"}
-TRAIN_STEP_COMPARE_FLAGS = {
-    "compare_dense_attention": "dense_attention",
-    "compare_frame_cache": "frame_cache",
-    "compare_amp": "use_amp",
-    "compare_fused_adamw": "fused_adamw",
-    "compare_compile_model": "compile_model",
-}
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lerobot-ip-bench", description="Benchmarks that print JSON.")
     commands = parser.add_subparsers(dest="command", required=True)
-    for add in (_add_generate, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_lerobot_train,
-                _add_stream):
+    for add in (_add_generate, _add_env, _add_metaworld_env, _add_inference, _add_train_step, _add_stream):
         add(commands)
     return parser
 
@@ -132,25 +122,28 @@ def _run_metaworld_env(parser: argparse.ArgumentParser, args: argparse.Namespace
 # ---------------------------------------------------------------------------------------------------- inference
 def _add_inference(commands) -> None:
     inference = commands.add_parser("inference", help="instant_policy milliseconds per control step")
-    inference.add_argument("--preset", choices=["small", "paper"], default="small")
-    inference.add_argument("--repeats", type=int, default=5)
-    inference.add_argument("--policy-path", help="time this checkpoint (a pretrained_model directory) instead of a fresh preset")
-    _add_variant_arguments(inference)
-    inference.add_argument("--compile-inference", choices=["true", "false"],
-                           help="σ, φ and ψ through torch.compile for sampling (--policy.compile_inference; default "
-                                "false); the first control step, which compiles, is reported as warmup_s")
-    inference.add_argument("--compare-compile-inference", action="store_true",
-                           help="time compiled and eager sampling in alternation and report the ratio")
-    inference.add_argument("--samples-per-prediction", type=int,
-                           help="predict the mean of this many samples (--policy.samples_per_prediction; default 1)")
-    inference.add_argument("--json", action="store_true", help=JSON_HELP)
+    add_inference_arguments(inference)
     inference.set_defaults(handler=_run_inference)
 
 
-def _run_inference(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+def add_inference_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``inference`` (read back by :func:`inference_settings`)."""
+    parser.add_argument("--preset", choices=["small", "paper"], default="small")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--policy-path", help="time this checkpoint (a pretrained_model directory) instead of a fresh preset")
+    _add_variant_arguments(parser)
+    parser.add_argument("--compile-inference", choices=["true", "false"],
+                        help="σ, φ and ψ through torch.compile for sampling (--policy.compile_inference; default "
+                             "false); the first control step, which compiles, is reported as warmup_s")
+    parser.add_argument("--samples-per-prediction", type=int,
+                        help="predict the mean of this many samples (--policy.samples_per_prediction; default 1)")
+    parser.add_argument("--json", action="store_true", help=JSON_HELP)
+
+
+def inference_settings(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    """The options and config overrides of ``bench_inference`` that ``args`` give; a usage error for bad sizes."""
     if args.repeats <= 0:
         parser.error("--repeats must be positive")
-    compare = _compared_setting(parser, args, INFERENCE_COMPARE_FLAGS)
     settings = _variant_settings(args)
     if args.compile_inference is not None:
         settings["compile_inference"] = args.compile_inference == "true"
@@ -158,50 +151,58 @@ def _run_inference(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         if args.samples_per_prediction <= 0:
             parser.error("--samples-per-prediction must be positive")
         settings["samples_per_prediction"] = args.samples_per_prediction
-    from ..benchmarks.policy import inference_benchmark
+    return settings
 
-    return inference_benchmark(args.preset, args.repeats, args.policy_path, compare, **settings)
+
+def _run_inference(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    settings = inference_settings(parser, args)
+    from ..benchmarks.policy import bench_inference
+
+    return bench_inference(args.preset, repeats=args.repeats, policy_path=args.policy_path, **settings)
 
 
 # ---------------------------------------------------------------------------------------------------- train-step
 def _add_train_step(commands) -> None:
     train_step = commands.add_parser("train-step", help="instant_policy training samples per second, peak memory")
-    train_step.add_argument("--preset", choices=["small", "paper"], default="small")
-    train_step.add_argument("--batch-size", type=int, default=8)
-    train_step.add_argument("--repeats", type=int, default=5)
-    _add_variant_arguments(train_step)
-    train_step.add_argument("--frame-cache", choices=["true", "false"], default="true",
-                            help="scene nodes of every frame from precomputed frame encodings (lerobot-train's path)")
-    train_step.add_argument("--compare-frame-cache", action="store_true",
-                            help="time cached and live encoding in alternation and report the ratio")
-    train_step.add_argument("--amp", choices=["true", "false"], default="false",
-                            help="forward under autocast (bfloat16 on the CPU), as --policy.use_amp=true trains")
-    train_step.add_argument("--compare-amp", action="store_true",
-                            help="time autocast and float32 in alternation and report the ratio")
-    train_step.add_argument("--fused-adamw", choices=["true", "false"],
-                            help="AdamW's fused kernel (default: the preset's, fused on the CPU and CUDA)")
-    train_step.add_argument("--compare-fused-adamw", action="store_true",
-                            help="time fused and loop AdamW in alternation and report the ratio")
-    train_step.add_argument("--compile-model", choices=["true", "false"],
-                            help="σ, φ and ψ through torch.compile (--policy.compile_model; default false); the "
-                                 "compiling is timed as warmup_s, outside samples_per_s")
-    train_step.add_argument("--compare-compile-model", action="store_true",
-                            help="time compiled and eager layers in alternation and report the ratio")
-    train_step.add_argument("--json", action="store_true", help=JSON_HELP)
+    add_train_step_arguments(train_step)
     train_step.set_defaults(handler=_run_train_step)
 
 
-def _run_train_step(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+def add_train_step_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``train-step`` (read back by :func:`train_step_settings`)."""
+    parser.add_argument("--preset", choices=["small", "paper"], default="small")
+    parser.add_argument("--batch-size", type=int, default=8)
+    parser.add_argument("--repeats", type=int, default=5)
+    _add_variant_arguments(parser)
+    parser.add_argument("--frame-cache", choices=["true", "false"], default="true",
+                        help="scene nodes of every frame from precomputed frame encodings (lerobot-train's path)")
+    parser.add_argument("--amp", choices=["true", "false"], default="false",
+                        help="forward under autocast (bfloat16 on the CPU), as --policy.use_amp=true trains")
+    parser.add_argument("--fused-adamw", choices=["true", "false"],
+                        help="AdamW's fused kernel (default: the preset's, fused on the CPU and CUDA)")
+    parser.add_argument("--compile-model", choices=["true", "false"],
+                        help="σ, φ and ψ through torch.compile (--policy.compile_model; default false); the "
+                             "compiling is timed as warmup_s, outside samples_per_s")
+    parser.add_argument("--json", action="store_true", help=JSON_HELP)
+
+
+def train_step_settings(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    """The options and config overrides of ``bench_train_step`` that ``args`` give (batch size and repeats aside); a
+    usage error for bad sizes."""
     if min(args.repeats, args.batch_size) <= 0:
         parser.error("--repeats and --batch-size must be positive")
-    compare = _compared_setting(parser, args, TRAIN_STEP_COMPARE_FLAGS)
     settings = _variant_settings(args)
     settings["frame_cache"] = args.frame_cache == "true"
     settings["use_amp"] = args.amp == "true"
     settings.update(_given_flags(args, ("fused_adamw", "compile_model")))
-    from ..benchmarks.policy import train_step_benchmark
+    return settings
 
-    return train_step_benchmark(args.preset, args.batch_size, args.repeats, compare, **settings)
+
+def _run_train_step(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    settings = train_step_settings(parser, args)
+    from ..benchmarks.policy import bench_train_step
+
+    return bench_train_step(args.preset, batch_size=args.batch_size, repeats=args.repeats, **settings)
 
 
 def _add_variant_arguments(parser: argparse.ArgumentParser) -> None:
@@ -214,8 +215,6 @@ def _add_variant_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override the config (default: false, the shipped model; true: the paper's graph)")
     parser.add_argument("--num-frequencies", type=int,
                         help="edge-encoding frequencies D (default: 4, the shipped model; the paper's: 10)")
-    parser.add_argument("--compare-dense-attention", action="store_true",
-                        help="time dense and reference attention in alternation and report the ratio")
 
 
 def _variant_settings(args: argparse.Namespace) -> dict:
@@ -228,52 +227,6 @@ def _given_flags(args: argparse.Namespace, names: tuple[str, ...]) -> dict:
     """``{name: value}`` for each of ``names`` given on the command line; ``true``/``false`` become booleans."""
     values = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
     return {name: value == "true" if value in ("true", "false") else value for name, value in values.items()}
-
-
-def _compared_setting(parser: argparse.ArgumentParser, args: argparse.Namespace, flags: dict[str, str]) -> str | None:
-    """The setting of the one ``--compare-*`` flag given (``flags``: argparse name → setting), None without one; a
-    usage error for two or more."""
-    given = [setting for flag, setting in flags.items() if getattr(args, flag)]
-    if len(given) > 1:
-        names = [f"--{flag.replace('_', '-')}" for flag in flags]
-        parser.error(f"compare one variant at a time: {', '.join(names[:-1])} or {names[-1]}")
-    return given[0] if given else None
-
-
-# ---------------------------------------------------------------------------------------------------- lerobot-train
-def _add_lerobot_train(commands) -> None:
-    train = commands.add_parser("lerobot-train", help="lerobot-train's own samples per second on a dataset (loader, "
-                                                      "loop and update), per loader workers and OpenMP wait policy")
-    train.add_argument("--root", required=True, help="a LeRobotDataset in the data contract (frame encodings are "
-                                                     "built beside it by the first run when missing)")
-    train.add_argument("--repo-id", help="default: local/<the root's name>")
-    train.add_argument("--steps", type=int, default=500, help="training steps per run")
-    train.add_argument("--skip", type=int, default=200, help="log lines up to this step do not count (warm-up)")
-    train.add_argument("--log-every", type=int, default=50, help="--log_freq of each run")
-    train.add_argument("--batch-size", type=int, default=8)
-    train.add_argument("--threads", type=int, default=2, help="OMP_NUM_THREADS of each run")
-    train.add_argument("--num-workers", type=int, nargs="+", default=[1], help="loader workers to compare")
-    train.add_argument("--omp-wait-policy", nargs="+", default=["default"], choices=["default", "active", "passive"],
-                       help="OMP_WAIT_POLICY values to compare (default: unset)")
-    train.add_argument("--compile-model", choices=["true", "false"], default="false",
-                       help="--policy.compile_model of every run (compiling falls within --skip)")
-    train.add_argument("--rounds", type=int, default=1, help="every variant runs this many times, in alternation")
-    train.add_argument("--json", action="store_true", help=JSON_HELP)
-    train.set_defaults(handler=_run_lerobot_train)
-
-
-def _run_lerobot_train(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    if min(args.steps, args.log_every, args.batch_size, args.threads, args.rounds) <= 0 or args.skip < 0 \
-            or min(args.num_workers) < 0:
-        parser.error("--steps, --log-every, --batch-size, --threads and --rounds must be positive, --skip and "
-                     "--num-workers >= 0")
-    if args.skip >= args.steps:
-        parser.error(f"--skip ({args.skip}) must be below --steps ({args.steps})")
-    from ..benchmarks.lerobot_train import bench_lerobot_train
-
-    return bench_lerobot_train(args.root, args.repo_id, args.steps, args.skip, args.batch_size, args.log_every,
-                               args.threads, tuple(args.num_workers), tuple(args.omp_wait_policy),
-                               args.compile_model == "true", args.rounds)
 
 
 # ---------------------------------------------------------------------------------------------------- stream, pool

@@ -1,6 +1,6 @@
 """``lerobot-ip-eval-metaworld``: record MetaWorld expert demonstration sets and run ``lerobot-eval`` in
-``--env.type=metaworld_pointcloud`` on MetaWorld tasks, then print the success table with Wilson 95% intervals
-(``evaluation.suite``, ``evaluation.metaworld_suite``, ``evaluation.success_table``).
+``--env.type=metaworld_pointcloud`` on MetaWorld tasks, then print the success table with cluster (over tasks) and
+per-episode 95% intervals (``evaluation.suite``, ``evaluation.metaworld_suite``, ``evaluation.success_table``).
 
   lerobot-ip-eval-metaworld --policy metaworld_expert --episodes 10                  (MT10, the upper bound)
   lerobot-ip-eval-metaworld --policy instant_policy --policy-path CKPT --tasks pick-place-v3,reach-v3

@@ -1,5 +1,6 @@
 """``lerobot-ip-eval-suite``: record demonstration sets and run ``lerobot-eval`` on ``bullet_tabletop`` tasks, then
-print the success table with Wilson 95% intervals (``evaluation.suite``, ``evaluation.success_table``).
+print the success table with cluster (over tasks) and per-episode 95% intervals (``evaluation.suite``,
+``evaluation.success_table``).
 
   lerobot-ip-eval-suite --policy demo_replay --episodes 10 --demo-sets 3 --out outputs/eval_suite
   lerobot-ip-eval-suite --policy instant_policy --policy-path CKPT/pretrained_model --tasks open_drawer,push_button

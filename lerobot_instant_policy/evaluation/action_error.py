@@ -1,6 +1,6 @@
-"""Offline action error of an ``instant_policy`` checkpoint on held-out pseudo-tasks (``lerobot-ip-action-error``),
-as the inference parameters K (denoising steps), N (context demonstrations) and L (waypoints per demonstration) vary
-(the paper's table 2, right half, measured without a simulator).
+"""Offline action error of an ``instant_policy`` checkpoint on held-out pseudo-tasks (``lerobot-ip-action-error``), at
+one setting of the inference parameters K (denoising steps), N (context demonstrations) and L (waypoints per
+demonstration), measured without a simulator, against holding still and the context swap.
 
 For each of the first ``tasks`` pseudo-tasks of a pseudo-demonstration dataset (written by ``lerobot-ip-generate``,
 episodes of one pseudo-task share its ``task`` string), in order of their first episode:
@@ -16,19 +16,21 @@ episodes of one pseudo-task share its ``task`` string), in order of their first 
 
 Errors, averaged over all frames and all T horizon steps: translation ``‖p̂ − p‖`` in millimetres (world frame),
 rotation the geodesic angle between the predicted and true EE orientations in degrees, gripper accuracy the fraction
-of steps whose open/closed command (threshold 0.5) is right. Settings vary one parameter at a time around the
-defaults K=4, N=2, L=10 (the defaults row appears once). Three references at the default setting: the same config
-freshly initialised (``torch.manual_seed(0)``; its frozen geometry encoder is the config's pretrained one, as in a
-checkpoint before training), "hold": predicting the current state for every horizon step (no model), and the
-**context swap**: the same checkpoint, frames and noise, with the demonstrations of the *next* pseudo-task (in the
-order above, the last task taking the first's) relabelled as this task's. **Context gain** = swap error / own error,
-for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores its demonstrations.
-The default setting's translation error, holding still's and the swap's are also given per third of the live
-episodes (``phases``: the approach, the middle, the end), to show where along a task the demonstrations are read.
+of steps whose open/closed command (threshold 0.5) is right, at the setting asked (default K=4, N=2, L=10; each in
+the range the config accepts, :mod:`..model.bounds`, judged by the config's own checks). Three references at that
+setting: the same config freshly initialised (``torch.manual_seed(0)``; its frozen geometry encoder is the config's
+pretrained one, as in a checkpoint before training), "hold": predicting the current state for every horizon step (no
+model), and the **context swap**: the same checkpoint, frames and noise, with the demonstrations of the *next*
+pseudo-task (in the order above, the last task taking the first's) relabelled as this task's. **Context gain** = swap
+error / own error, for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores
+its demonstrations. The setting's translation error, holding still's and the swap's are also given per third of the
+live episodes (``phases``: the approach, the middle, the end), to show where along a task the demonstrations are read.
 
 K is handed to ``predict_action_chunk`` (``num_inference_steps``) at every prediction; the checkpoint's config is
 left as it was loaded, except ``samples_per_prediction`` when given (every setting and reference then predicts the
-mean of that many samples, drawn from the frame's generator).
+mean of that many samples, drawn from the frame's generator). The repository's sweep of several settings (the
+paper's table 2, right half) is ``python -m workbench.cli.action_error_sweep``, built on :func:`open_probe`,
+:func:`evaluate_setting` and :func:`references`.
 """
 
 from __future__ import annotations
@@ -43,16 +45,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..configuration_instant_policy import (
-    MAX_SAMPLES_PER_PREDICTION,
-    SUPPORTED_DEMOS,
-    SUPPORTED_INFERENCE_STEPS,
-    SUPPORTED_WAYPOINTS,
-)
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
 from ..modeling_instant_policy import InstantPolicyPolicy
-from .checkpoints import load_policy
+from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
@@ -60,7 +56,7 @@ PHASES = ("first_third", "middle_third", "last_third")
 
 
 class ActionErrorError(ValueError):
-    """Bad settings (N too large for the dataset, K or L outside the supported range, …)."""
+    """Bad settings (N too large for the dataset, K, N, L or S outside the supported range, …)."""
 
 
 @dataclasses.dataclass
@@ -192,28 +188,20 @@ def predict_task(policy: InstantPolicyPolicy, held_out: HeldOutTask, k: int) -> 
     return predictions
 
 
-def evaluate_settings(policy: InstantPolicyPolicy, tasks: list[HeldOutTask],
-                      settings: list[tuple[int, int, int]]) -> list[dict]:
-    """Summaries of :func:`chunk_errors` over all tasks' frames for each ``(K, N, L)`` in ``settings``."""
-    errors: dict[tuple[int, int, int], list] = {setting: [] for setting in settings}
-    seconds = dict.fromkeys(settings, 0.0)
+def evaluate_setting(policy: InstantPolicyPolicy, tasks: list[HeldOutTask], setting: tuple[int, int, int]) -> dict:
+    """Summary of :func:`chunk_errors` over all tasks' frames at ``setting`` = ``(K, N, L)``: each task's first N
+    demonstrations at L waypoints as the context, K DDIM steps; ``ms_per_prediction`` times the predictions alone."""
+    k, n, l = setting
+    errors, seconds = [], 0.0
     for held_out in tasks:
-        for n, l in dict.fromkeys((n, l) for _, n, l in settings):
-            policy.set_demonstrations(held_out.demos[:n], num_waypoints=l)
-            for k in [k for k, n2, l2 in settings if (n2, l2) == (n, l)]:
-                start = time.perf_counter()
-                predictions = predict_task(policy, held_out, k)
-                seconds[(k, n, l)] += time.perf_counter() - start
-                errors[(k, n, l)] += [chunk_errors(p, f.target.astype(np.float64))
-                                      for p, f in zip(predictions, held_out.frames)]
+        policy.set_demonstrations(held_out.demos[:n], num_waypoints=l)
+        start = time.perf_counter()
+        predictions = predict_task(policy, held_out, k)
+        seconds += time.perf_counter() - start
+        errors += [chunk_errors(p, f.target.astype(np.float64)) for p, f in zip(predictions, held_out.frames)]
     phases = [frame.phase for held_out in tasks for frame in held_out.frames]
-    results = []
-    for setting in settings:
-        k, n, l = setting
-        frames = len(errors[setting])
-        results.append({"K": k, "N": n, "L": l, **summarise(errors[setting], phases),
-                        "ms_per_prediction": round(1000 * seconds[setting] / frames, 1)})
-    return results
+    return {"K": k, "N": n, "L": l, **summarise(errors, phases),
+            "ms_per_prediction": round(1000 * seconds / len(errors), 1)}
 
 
 def hold_reference(tasks: list[HeldOutTask]) -> dict:
@@ -264,45 +252,46 @@ def phase_table(own: dict, hold: dict, swap: dict) -> dict:
     return table
 
 
-def grid(ks: list[int], ns: list[int], ls: list[int], default: tuple[int, int, int]) -> list[tuple[int, int, int]]:
-    """(K, N, L) settings varying one parameter at a time around ``default`` (which appears once, first)."""
-    k0, n0, l0 = default
-    settings = [default] + [(k, n0, l0) for k in ks] + [(k0, n, l0) for n in ns] + [(k0, n0, l) for l in ls]
-    return list(dict.fromkeys(settings))
-
-
-def _check_range(name: str, values: list[int], supported: tuple[int, int]) -> None:
-    low, high = supported
-    bad = [value for value in values if not low <= value <= high]
-    if bad:
-        raise ActionErrorError(f"{name} must be in {low}…{high}, got {bad}")
-
-
-def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, frames_per_task: int = 4, seed: int = 0,
-                 ks: list[int] = (1, 2, 4, 8), ns: list[int] = (1, 2, 3), ls: list[int] = (2, 5, 10, 15),
-                 default: tuple[int, int, int] = (DEFAULT_K, DEFAULT_N, DEFAULT_L), untrained: bool = True,
-                 repo_id: str | None = None, device: str = "cpu", samples_per_prediction: int | None = None) -> dict:
-    """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` (module docstring).
-
-    Returns a JSON-ready dict: ``settings`` (one entry per (K, N, L), the default first), ``untrained``, ``hold`` and
-    ``swap`` references at the default setting, ``context_gain`` (swap / own error at the default setting),
-    ``phases`` (:func:`phase_table`: the same three per third of the live episodes), the dataset and sample
-    description and the wall time. Raises
-    ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad input (N ≥ demos per task, …).
-    """
-    ks, ns, ls, default = list(ks), list(ns), list(ls), tuple(default)
-    _check_range("K (denoising steps)", ks + [default[0]], SUPPORTED_INFERENCE_STEPS)
-    _check_range("N (demonstrations)", ns + [default[1]], SUPPORTED_DEMOS)
-    _check_range("L (waypoints)", ls + [default[2]], SUPPORTED_WAYPOINTS)
+def check_setting(config, setting: tuple[int, int, int], samples_per_prediction: int | None = None) -> None:
+    """``setting`` = ``(K, N, L)`` and ``samples_per_prediction`` (S) judged by the config's own range checks (those
+    :class:`~..configuration_instant_policy.InstantPolicyConfig` makes when it is built, :mod:`..model.bounds`):
+    ``config`` with them in it is built and dropped; ``ActionErrorError`` with the config's message."""
+    k, n, l = setting
+    values = {"inference_steps": k, "num_demos": n, "num_waypoints": l}
     if samples_per_prediction is not None:
-        _check_range("samples per prediction", [samples_per_prediction], (1, MAX_SAMPLES_PER_PREDICTION))
-    start = time.perf_counter()
+        values["samples_per_prediction"] = samples_per_prediction
+    try:
+        dataclasses.replace(config, **values)
+    except ValueError as error:
+        raise ActionErrorError(f"unsupported setting K={k}, N={n}, L={l}: {error}") from error
+
+
+@dataclasses.dataclass
+class Probe:
+    """A checkpoint loaded for the action error (``policy``, in eval mode), its held-out ``tasks`` and ``description``:
+    what the result reports of the checkpoint, the dataset and the frames."""
+
+    policy: InstantPolicyPolicy
+    tasks: list[HeldOutTask]
+    description: dict
+
+
+def open_probe(policy_path: str | Path, root: str | Path, settings: list[tuple[int, int, int]], tasks: int = 12,
+               frames_per_task: int = 4, seed: int = 0, repo_id: str | None = None, device: str = "cpu",
+               samples_per_prediction: int | None = None) -> Probe:
+    """The checkpoint at ``policy_path`` and the first ``tasks`` held-out pseudo-tasks at ``root``, once every
+    ``(K, N, L)`` of ``settings`` is known to be evaluable: in the config's ranges (:func:`check_setting`, before the
+    weights load), N below each task's episodes, the dataset's clouds the checkpoint's size. ``ActionErrorError`` /
+    ``EvaluationError`` / ``DemonstrationError`` naming the problem."""
+    config = checkpoint_config(Checkpoint(step=0, path=Path(policy_path)))
+    for setting in settings:
+        check_setting(config, setting, samples_per_prediction)
     overrides = {} if samples_per_prediction is None else {"samples_per_prediction": samples_per_prediction}
     policy = load_policy(policy_path, device, **overrides)
     config = policy.config
     held_out = load_held_out_tasks(root, tasks, frames_per_task, config.horizon, seed, repo_id)
     fewest = min(len(task.demos) for task in held_out)
-    largest = max(ns + [default[1]])
+    largest = max(n for _, n, _ in settings)
     if largest > fewest:
         raise ActionErrorError(
             f"N={largest} context demonstrations asked, but a pseudo-task at {root} has only {fewest + 1} episodes: "
@@ -311,25 +300,50 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     if held_out[0].frames[0].points.shape[0] != config.num_points:
         raise ActionErrorError(f"the dataset's clouds have {held_out[0].frames[0].points.shape[0]} points, the "
                                f"checkpoint expects {config.num_points}")
-    settings = grid(ks, ns, ls, default)
-    result = {
+    description = {
         "checkpoint": str(policy_path), "root": str(root), "device": device, "torch_threads": torch.get_num_threads(),
         "tasks": len(held_out), "frames_per_task": frames_per_task,
         "frames": sum(len(task.frames) for task in held_out), "horizon_T": config.horizon, "seed": seed,
         "checkpoint_defaults": {"K": config.inference_steps, "N": config.num_demos, "L": config.num_waypoints},
         "samples_per_prediction": config.samples_per_prediction,
-        "default": dict(zip("KNL", default)),
-        "settings": evaluate_settings(policy, held_out, settings),
     }
-    result["swap"] = evaluate_settings(policy, swapped_context(held_out), [default])[0]
-    result["context_gain"] = context_gain(result["settings"][0], result["swap"])
+    return Probe(policy, held_out, description)
+
+
+def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
+    """The references at the setting of ``own`` (an :func:`evaluate_setting` row of ``probe``): ``swap`` (another
+    task's demonstrations), ``context_gain`` (swap / own), ``untrained`` (the same config freshly initialised,
+    ``torch.manual_seed(0)``; only with ``untrained``), ``hold`` (predicting the current state) and ``phases``
+    (:func:`phase_table`)."""
+    setting = (own["K"], own["N"], own["L"])
+    result = {"swap": evaluate_setting(probe.policy, swapped_context(probe.tasks), setting)}
+    result["context_gain"] = context_gain(own, result["swap"])
     if untrained:
+        device = next(probe.policy.parameters()).device
         with torch.random.fork_rng(devices=[]), contextlib.redirect_stdout(sys.stderr):  # caller's RNG untouched
             torch.manual_seed(0)
-            fresh = InstantPolicyPolicy(dataclasses.replace(policy.config)).to(device).eval()
-        result["untrained"] = evaluate_settings(fresh, held_out, [default])[0]
-    result["hold"] = hold_reference(held_out)
-    result["phases"] = phase_table(result["settings"][0], result["hold"], result["swap"])
-    result["wall_s"] = round(time.perf_counter() - start, 1)
+            fresh = InstantPolicyPolicy(dataclasses.replace(probe.policy.config)).to(device).eval()
+        result["untrained"] = evaluate_setting(fresh, probe.tasks, setting)
+    result["hold"] = hold_reference(probe.tasks)
+    result["phases"] = phase_table(own, result["hold"], result["swap"])
     return result
 
+
+def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, frames_per_task: int = 4, seed: int = 0,
+                 k: int = DEFAULT_K, n: int = DEFAULT_N, l: int = DEFAULT_L, untrained: bool = True,
+                 repo_id: str | None = None, device: str = "cpu", samples_per_prediction: int | None = None) -> dict:
+    """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` at K = ``k``, N = ``n``,
+    L = ``l`` (module docstring).
+
+    Returns a JSON-ready dict: ``settings`` (one row, that setting's errors), the references of :func:`references`
+    (``swap``, ``context_gain``, ``untrained`` with ``untrained``, ``hold``, ``phases``), the dataset and sample
+    description and the wall time. Raises ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad
+    input (a value outside the config's ranges, N ≥ demos per task, …).
+    """
+    start = time.perf_counter()
+    probe = open_probe(policy_path, root, [(k, n, l)], tasks, frames_per_task, seed, repo_id, device,
+                       samples_per_prediction)
+    own = evaluate_setting(probe.policy, probe.tasks, (k, n, l))
+    result = {**probe.description, "settings": [own], **references(probe, own, untrained)}
+    result["wall_s"] = round(time.perf_counter() - start, 1)
+    return result

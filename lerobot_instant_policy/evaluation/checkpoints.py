@@ -1,6 +1,6 @@
 """Checkpoints of ``instant_policy`` runs: finding them in a ``lerobot-train`` output directory and loading them (the
 policy, and the preprocessor saved beside it) for offline evaluation (``loss_curve``, ``action_error``, the
-benchmarks and ``docs/scripts``)."""
+benchmarks and ``workbench/scripts``)."""
 
 from __future__ import annotations
 

@@ -9,7 +9,9 @@
 * ``metaworld_expert`` (the upper bound, reading MetaWorld's privileged state) is a policy of this env only.
 * The context-swap control hands each task the demonstrations of a task of another kind: MT10's tasks that reach or
   move something to a place, that open, and that close or press (``SWAP_GROUPS``); a task outside MT10 is its own
-  group (``evaluation.suite.swap_sources``).
+  group. The sources are a permutation, every task's demonstrations read by one other task
+  (``evaluation.suite.swap_sources``); docs/metaworld.md lists MT10's, beside the older pairing the committed MT10
+  test-split swap ran with (door-open's demonstrations read twice, peg-insert-side's never).
 """
 
 from __future__ import annotations
@@ -43,6 +45,17 @@ def record_demonstrations(settings, task: str, demos: Path, seed: int, source: s
 def eval_flags(settings) -> list[str]:
     """The env flags of every ``lerobot-eval`` call in MetaWorld."""
     return [f"--env.episode_length={settings.episode_length}", f"--env.pointcloud_every={settings.pointcloud_every}"]
+
+
+def conditions(settings, task: str, env_values: dict[str, str]) -> dict:
+    """MetaWorld's part of a cell's conditions (``evaluation.suite.cell_conditions``): success is MetaWorld's own
+    flag at a step (``hold_steps`` 1), the step limit is ``episode_length``, the video size ``--env.render_size`` or
+    the env config's, and the cloud is rendered every ``pointcloud_every`` steps."""
+    from ..sim.metaworld.configuration_metaworld import MetaworldPointCloudEnvConfig
+
+    return {"success": "metaworld", "hold_steps": 1, "episode_length": settings.episode_length,
+            "render_size": int(env_values.get("render_size", MetaworldPointCloudEnvConfig.render_size)),
+            "obs_type": None, "pointcloud_every": settings.pointcloud_every}
 
 
 def check(settings) -> str | None:

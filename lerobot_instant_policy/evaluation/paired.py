@@ -1,16 +1,19 @@
 """Paired comparison of two columns evaluated on the same episodes: the difference in success rate with a cluster
 bootstrap interval.
 
-Episodes of one task and demonstration set are not independent draws (a set a policy reads badly fails most of its
-episodes), so the resampling unit is the cell (task × demonstration set; ``evaluation.manifest``), not the episode.
-For columns A and B with the same cells and seeds, cell c holds ``d_c = (successes of A − successes of B)`` over its
-``n_c`` episodes, and the difference in success rate is
+Episodes of one task are not independent draws (a task a policy cannot do fails in every set; a set a policy reads
+badly fails most of its episodes), so the resampling unit is a cluster of episodes, not the episode: by default the
+task (``unit="task"``, the unit a reader generalises over: other tasks like these), or the cell (``unit="cell"``:
+task × demonstration set, ``evaluation.manifest``), which treats the sets of one task as independent and so gives
+a narrower interval. For columns A and B with the same cells and seeds, cluster k holds ``d_k = (successes of A −
+successes of B)`` over its ``n_k`` episodes, and the difference in success rate is
 
-    Δ = Σ_c d_c / Σ_c n_c.
+    Δ = Σ_k d_k / Σ_k n_k.
 
-The interval resamples the cells with replacement ``resamples`` times (a seeded generator) and takes the 2.5th and
-97.5th percentiles of Δ over the resamples (the percentile bootstrap). "A beats B" is said only where the whole
-interval lies above zero, "B beats A" where it lies below, "no difference shown" otherwise.
+The interval resamples the clusters with replacement ``resamples`` times (a generator seeded ``seed``: the same
+cells give the same interval) and takes the 2.5th and 97.5th percentiles of Δ over the resamples (the percentile
+bootstrap). With a single cluster there is nothing to resample: the interval is NaN. "A beats B" is said only where
+the whole interval lies above zero, "B beats A" where it lies below, "no difference shown" otherwise.
 """
 
 from __future__ import annotations
@@ -23,11 +26,13 @@ from .manifest import CellOutcome, ManifestError
 
 RESAMPLES = 10_000
 CONFIDENCE = 0.95
+UNITS = ("task", "cell")  # what the bootstrap resamples (module docstring)
 
 
 @dataclass(frozen=True)
 class PairedDifference:
-    """Δ = rate(A) − rate(B) over ``episodes`` paired episodes in ``cells`` cells, with its bootstrap interval."""
+    """Δ = rate(A) − rate(B) over ``episodes`` paired episodes in ``cells`` cells, with its bootstrap interval over
+    ``clusters`` clusters of ``unit`` (``task`` or ``cell``)."""
 
     a: str
     b: str
@@ -36,6 +41,8 @@ class PairedDifference:
     difference: float
     low: float
     high: float
+    unit: str = "task"
+    clusters: int = 0
 
     @property
     def verdict(self) -> str:
@@ -46,32 +53,44 @@ class PairedDifference:
         return "no difference shown"
 
     def as_json(self) -> dict:
+        unit = "tasks" if self.unit == "task" else "task x demonstration-set cells"
         return {"a": self.a, "b": self.b, "cells": self.cells, "episodes": self.episodes,
-                "difference": self.difference, "ci95_low": self.low, "ci95_high": self.high,
-                "interval": "cluster bootstrap over task x demonstration-set cells", "verdict": self.verdict}
+                "difference": self.difference, "ci95_low": None if np.isnan(self.low) else self.low,
+                "ci95_high": None if np.isnan(self.high) else self.high, "unit": self.unit,
+                "clusters": self.clusters, "interval": f"cluster bootstrap over {unit}", "verdict": self.verdict}
 
     def line(self) -> str:
         return (f"{self.a} - {self.b}: {100 * self.difference:+.1f} points [{100 * self.low:+.1f}, "
-                f"{100 * self.high:+.1f}] over {self.episodes} paired episodes in {self.cells} cells: {self.verdict}")
+                f"{100 * self.high:+.1f}] over {self.episodes} paired episodes, {self.clusters} {self.unit}s "
+                f"resampled ({self.cells} cells): {self.verdict}")
 
 
 def paired_difference(a: str, cells_a: dict[tuple[str, int], CellOutcome], b: str,
                       cells_b: dict[tuple[str, int], CellOutcome], resamples: int = RESAMPLES,
-                      seed: int = 0) -> PairedDifference:
-    """Δ of column ``a`` over column ``b`` (module docstring); their cells must be the same, on the same seeds
-    (``ManifestError`` otherwise)."""
+                      seed: int = 0, unit: str = "task") -> PairedDifference:
+    """Δ of column ``a`` over column ``b`` with its interval resampling ``unit`` (module docstring); their cells
+    must be the same, on the same seeds (``ManifestError`` otherwise)."""
+    if unit not in UNITS:
+        raise ValueError(f"unit must be one of {list(UNITS)}, got {unit!r}")
     if set(cells_a) != set(cells_b) or not cells_a:
         raise ManifestError(f"{a!r} and {b!r} must hold the same non-empty cells to be paired")
     keys = sorted(cells_a)
     for key in keys:
         if cells_a[key].eval_seeds != cells_b[key].eval_seeds:
             raise ManifestError(f"{key[0]}, set {key[1]}: {a!r} and {b!r} ran different seeds; they cannot be paired")
-    differences = np.array([sum(cells_a[key].successes) - sum(cells_b[key].successes) for key in keys], dtype=float)
-    episodes = np.array([len(cells_a[key].successes) for key in keys], dtype=float)
-    rng = np.random.default_rng(seed)
-    draws = rng.integers(0, len(keys), size=(resamples, len(keys)))
-    resampled = differences[draws].sum(axis=1) / episodes[draws].sum(axis=1)
-    tail = 100 * (1 - CONFIDENCE) / 2
-    low, high = np.percentile(resampled, [tail, 100 - tail])
+    clusters: dict[tuple, list[int]] = {}
+    for key in keys:
+        counts = clusters.setdefault(key[:1] if unit == "task" else key, [0, 0])
+        counts[0] += sum(cells_a[key].successes) - sum(cells_b[key].successes)
+        counts[1] += len(cells_a[key].successes)
+    differences = np.array([d for d, _ in clusters.values()], dtype=float)
+    episodes = np.array([n for _, n in clusters.values()], dtype=float)
+    low = high = np.nan
+    if len(clusters) > 1:
+        rng = np.random.default_rng(seed)
+        draws = rng.integers(0, len(clusters), size=(resamples, len(clusters)))
+        resampled = differences[draws].sum(axis=1) / episodes[draws].sum(axis=1)
+        tail = 100 * (1 - CONFIDENCE) / 2
+        low, high = np.percentile(resampled, [tail, 100 - tail])
     return PairedDifference(a, b, len(keys), int(episodes.sum()), float(differences.sum() / episodes.sum()),
-                            float(low), float(high))
+                            float(low), float(high), unit, len(clusters))

@@ -1,4 +1,4 @@
-"""Success tables of ``lerobot-eval`` runs: per task, per task group and overall, each with a Wilson 95% interval.
+"""Success tables of ``lerobot-eval`` runs: per task, per task group and overall, each rate with two 95% intervals.
 
 Each path is a ``lerobot-eval`` output directory (it holds ``eval_info.json``) or a directory searched recursively
 for them. A path may be prefixed ``POLICY=`` to name the policy its runs evaluated; otherwise the policy comes from
@@ -7,8 +7,19 @@ is ``policy``. The task of a result is its ``task_group`` in ``eval_info.json`` 
 is only the env type, the name of the run directory (of its parent for a demonstration set's ``set-<s>`` folder).
 Runs of the same policy and task are pooled: the episodes of every demonstration set count together.
 
-Interval: the Wilson score interval of a binomial proportion at 95% (``scipy.stats.binomtest(...).proportion_ci``),
-which stays inside [0, 1] and is not degenerate at 0 or n successes, unlike the normal approximation.
+Intervals. Episodes are not independent draws: those of one task share its difficulty, those of one demonstration set
+the set's quality. Every rate ``Σ successes / Σ episodes`` therefore carries
+
+* the *cluster* interval (``cluster_ci95_*``, the one to quote): a percentile bootstrap that resamples whole tasks with
+  replacement (``BOOTSTRAP_RESAMPLES`` resamples from a generator seeded ``BOOTSTRAP_SEED``, so the same counts give
+  the same interval) and takes the 2.5th and 97.5th percentiles of the resampled rate: the uncertainty about the rate
+  on other tasks like these. A row of one task resamples its cells instead (``evaluation.manifest``: one
+  demonstration set, or one ``lerobot-eval`` run, each); a row with a single cell has none (NaN).
+* the *per-episode* interval (``ci95_*``): the Wilson score interval of a binomial proportion
+  (``scipy.stats.binomtest(...).proportion_ci``), which treats every episode as an independent draw, so it is
+  narrower than the cluster interval wherever tasks differ; it stays inside [0, 1] and is not degenerate at 0 or n
+  successes. A column with no success (or no failure) has a cluster interval of zero width; there the per-episode
+  interval is the informative one.
 """
 
 from __future__ import annotations
@@ -19,8 +30,10 @@ import re
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
+import numpy as np
 from scipy.stats import binomtest
 
 from .metaworld_suite import SWAP_GROUPS as MT10_KINDS
@@ -28,7 +41,15 @@ from .metaworld_suite import SWAP_GROUPS as MT10_KINDS
 EVAL_INFO = "eval_info.json"
 DEFAULT_ENV_TYPE = "bullet_tabletop"
 CONFIDENCE = 0.95
+BOOTSTRAP_RESAMPLES = 10_000
+BOOTSTRAP_SEED = 0
 OTHER_GROUP = "other"
+TASK_UNIT, CELL_UNIT = "task", "cell"  # what a cluster interval resamples (module docstring)
+INTERVALS = {
+    "cluster_ci95": f"percentile cluster bootstrap resampling tasks (a row of one task: its cells), "
+                    f"{BOOTSTRAP_RESAMPLES} resamples, seed {BOOTSTRAP_SEED}; null for a single cluster",
+    "ci95": "per episode: Wilson score interval, every episode an independent draw",
+}
 
 # The suite's tasks by what a policy must read from its demonstrations; tasks registered from
 # outside the package fall in OTHER_GROUP.
@@ -54,14 +75,32 @@ def wilson_interval(successes: int, episodes: int) -> tuple[float, float]:
     return float(interval.low), float(interval.high)
 
 
+def cluster_interval(successes, episodes, resamples: int = BOOTSTRAP_RESAMPLES,
+                     seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """The percentile bootstrap 95% interval ``(low, high)`` of ``Σ successes / Σ episodes`` over clusters
+    (``successes``, ``episodes``: one count per cluster) resampled with replacement; NaNs for fewer than two
+    clusters."""
+    successes, episodes = np.asarray(successes, dtype=float), np.asarray(episodes, dtype=float)
+    if len(successes) < 2:
+        return math.nan, math.nan
+    draws = np.random.default_rng(seed).integers(0, len(successes), size=(resamples, len(successes)))
+    rates = successes[draws].sum(axis=1) / episodes[draws].sum(axis=1)
+    tail = 100 * (1 - CONFIDENCE) / 2
+    low, high = np.percentile(rates, [tail, 100 - tail])
+    return float(low), float(high)
+
+
 @dataclass(frozen=True)
 class SuccessCount:
-    """``successes`` of ``episodes`` episodes of ``policy`` on ``task`` (a task, a group's name or ``overall``)."""
+    """``successes`` of ``episodes`` episodes of ``policy`` on ``task`` (a task, a group's name or ``overall``);
+    ``cells``: the counts it pools, ``(task, successes, episodes)`` per cell (one demonstration set or
+    ``lerobot-eval`` run of a task; a task's whole count where only that is known)."""
 
     task: str
     policy: str
     episodes: int
     successes: int
+    cells: tuple[tuple[str, int, int], ...] = ()
 
     @property
     def success_rate(self) -> float:
@@ -69,17 +108,55 @@ class SuccessCount:
 
     @property
     def interval(self) -> tuple[float, float]:
+        """The per-episode (Wilson) 95% interval."""
         return wilson_interval(self.successes, self.episodes)
+
+    @property
+    def cluster_unit(self) -> str | None:
+        """What :attr:`cluster` resamples: tasks, or the cells of a row of one task; ``None`` for one cell."""
+        if len({task for task, _, _ in self.cells}) > 1:
+            return TASK_UNIT
+        return CELL_UNIT if len(self.cells) > 1 else None
+
+    @cached_property
+    def cluster(self) -> tuple[float, float]:
+        """The cluster bootstrap 95% interval (module docstring): over tasks, or over the cells of one task."""
+        if self.cluster_unit == CELL_UNIT:
+            return cluster_interval([s for _, s, _ in self.cells], [n for _, _, n in self.cells])
+        per_task: dict[str, list[int]] = {}
+        for task, successes, episodes in self.cells:
+            counts = per_task.setdefault(task, [0, 0])
+            counts[0] += successes
+            counts[1] += episodes
+        return cluster_interval([s for s, _ in per_task.values()], [n for _, n in per_task.values()])
 
     def as_json(self) -> dict:
         low, high = self.interval
+        cluster_low, cluster_high = self.cluster
         return {"task": self.task, "policy": self.policy, "episodes": self.episodes, "successes": self.successes,
-                "success_rate": self.success_rate, "ci95_low": low, "ci95_high": high}
+                "success_rate": self.success_rate, "cluster_ci95_low": _json_number(cluster_low),
+                "cluster_ci95_high": _json_number(cluster_high), "cluster_unit": self.cluster_unit,
+                "clusters": self.cluster_count, "ci95_low": low, "ci95_high": high}
+
+    @property
+    def cluster_count(self) -> int:
+        """How many clusters :attr:`cluster` resamples (tasks, or the cells of one task)."""
+        tasks = len({task for task, _, _ in self.cells})
+        return tasks if tasks > 1 else len(self.cells)
 
     def cell(self) -> str:
-        """``successes/episodes rate% [low–high]`` for a text table."""
+        """``successes/episodes rate% [cluster low-high] (per-episode low-high)`` for a text table; ``[-]`` where
+        there is no cluster interval."""
         low, high = self.interval
-        return f"{self.successes}/{self.episodes} {100 * self.success_rate:.0f}% [{100 * low:.0f}-{100 * high:.0f}]"
+        cluster_low, cluster_high = self.cluster
+        cluster = "[-]" if math.isnan(cluster_low) else f"[{100 * cluster_low:.0f}-{100 * cluster_high:.0f}]"
+        return (f"{self.successes}/{self.episodes} {100 * self.success_rate:.0f}% {cluster} "
+                f"({100 * low:.0f}-{100 * high:.0f})")
+
+
+def _json_number(value: float) -> float | None:
+    """``None`` for NaN (JSON has no NaN)."""
+    return None if math.isnan(value) else value
 
 
 def find_eval_infos(path: Path) -> list[Path]:
@@ -129,14 +206,15 @@ def read_eval_info(eval_info: Path, policy: str | None, env_type: str) -> list[S
         successes = entry["metrics"]["successes"]
         group = str(entry["task_group"])
         task = named_dir.name if group == env_type else group
-        results.append(SuccessCount(task, policy, len(successes), int(sum(map(bool, successes)))))
+        count = int(sum(map(bool, successes)))
+        results.append(SuccessCount(task, policy, len(successes), count, ((task, count, len(successes)),)))
     return results
 
 
 def read_table_rows(table: Path, policy: str | None) -> list[SuccessCount]:
     """The per-task rows of a table this module wrote (``OUT.json``), those of ``policy`` only when given: the
-    counts of runs evaluated elsewhere (another machine or session). ``ValueError`` when it is no such table or has
-    no row of ``policy``."""
+    counts of runs evaluated elsewhere (another machine or session), each task one cluster (its cells are not
+    known). ``ValueError`` when it is no such table or has no row of ``policy``."""
     try:
         rows = json.loads(table.read_text()).get("rows")
     except (json.JSONDecodeError, AttributeError) as error:
@@ -144,7 +222,8 @@ def read_table_rows(table: Path, policy: str | None) -> list[SuccessCount]:
     keys = ("task", "policy", "episodes", "successes")
     if not isinstance(rows, list) or not all(isinstance(row, dict) and all(key in row for key in keys) for row in rows):
         raise ValueError(f"{table} is not a success table: it needs a 'rows' list of {', '.join(keys)}")
-    results = [SuccessCount(str(row["task"]), str(row["policy"]), int(row["episodes"]), int(row["successes"]))
+    results = [SuccessCount(str(row["task"]), str(row["policy"]), int(row["episodes"]), int(row["successes"]),
+                            ((str(row["task"]), int(row["successes"]), int(row["episodes"])),))
                for row in rows if policy is None or row["policy"] == policy]
     if not results:
         raise ValueError(f"{table} has no rows of policy {policy!r}")
@@ -180,13 +259,15 @@ def collect_results(paths: list[str], default_policy: str | None, env_type: str)
 
 
 def pool(results: list[SuccessCount], name_of: Callable[[str], str]) -> list[SuccessCount]:
-    """Counts summed per (``name_of(task)``, policy), in first-seen order."""
-    pooled: dict[tuple[str, str], list[int]] = {}
+    """Counts summed and cells gathered per (``name_of(task)``, policy), in first-seen order."""
+    pooled: dict[tuple[str, str], list] = {}
     for result in results:
-        counts = pooled.setdefault((name_of(result.task), result.policy), [0, 0])
+        counts = pooled.setdefault((name_of(result.task), result.policy), [0, 0, ()])
         counts[0] += result.episodes
         counts[1] += result.successes
-    return [SuccessCount(name, policy, episodes, successes) for (name, policy), (episodes, successes) in pooled.items()]
+        counts[2] += result.cells
+    return [SuccessCount(name, policy, episodes, successes, cells)
+            for (name, policy), (episodes, successes, cells) in pooled.items()]
 
 
 def policy_means(results: list[SuccessCount]) -> dict[str, float]:
@@ -207,7 +288,8 @@ def grouped_tasks(results: list[SuccessCount]) -> list[tuple[str, list[str]]]:
 
 def format_table(results: list[SuccessCount]) -> str:
     """A text table, one column per policy: each task grouped as ``TABLE_GROUPS``, each group pooled, then every
-    episode pooled (``overall``); each cell ``successes/episodes rate% [Wilson 95% interval]``."""
+    episode pooled (``overall``); each cell ``successes/episodes rate% [cluster 95% interval] (per-episode 95%
+    interval)`` (module docstring), explained below the table."""
     policies = sorted({result.policy for result in results})
     by_key = {(result.task, result.policy): result for result in results}
     group_counts = {(result.task, result.policy): result for result in pool(results, task_group)}
@@ -222,12 +304,18 @@ def format_table(results: list[SuccessCount]) -> str:
     widths = [max(len(row[column]) for row in rows) for column in range(len(rows[0]))]
     lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)) for row in rows]
     lines.insert(1, "  ".join("-" * width for width in widths))
-    return "\n".join(lines)
+    return "\n".join([*lines, "", LEGEND])
+
+
+LEGEND = ("[low-high]: 95% cluster bootstrap over tasks (a task's own row: over its cells; [-]: one cell); "
+          "(low-high): 95% Wilson interval per episode")
 
 
 def results_json(results: list[SuccessCount]) -> dict:
     """The table as JSON: per (task, policy), per (group, policy) and per policy overall, each with its counts,
-    ``success_rate`` in [0, 1] and Wilson interval; ``mean_success_rate``: each policy's mean over tasks."""
+    ``success_rate`` in [0, 1], its cluster interval (``cluster_ci95_*``, over ``clusters`` of ``cluster_unit``)
+    and its per-episode Wilson interval (``ci95_*``); ``mean_success_rate``: each policy's mean over tasks;
+    ``intervals``: what each interval is."""
     tasks_of = dict(grouped_tasks(results))
     return {
         "rows": [result.as_json() for result in results],
@@ -236,40 +324,52 @@ def results_json(results: list[SuccessCount]) -> dict:
         "overall": {result.policy: result.as_json() for result in pool(results, lambda task: "overall")},
         "mean_success_rate": policy_means(results),
         "confidence": CONFIDENCE,
-        "interval": "wilson",
+        "intervals": INTERVALS,
     }
 
 
 def save_bar_chart(results: list[SuccessCount], path: Path, title: str = "success per task") -> None:
-    """Grouped bars with Wilson 95% error bars: one group of bars per task (in ``TABLE_GROUPS`` order), one bar per
-    policy, success rate in %, episodes above each bar."""
+    """Grouped bars, one group per task (in ``TABLE_GROUPS`` order) and one for all tasks pooled, one bar per policy,
+    success rate in %: the thick error bar is the cluster 95% interval (all tasks: over tasks; one task: over its
+    cells), the thin grey one beside it the per-episode Wilson interval; episodes above each bar."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    all_tasks = "all tasks"
     tasks = [task for _, group_tasks in grouped_tasks(results) for task in group_tasks]
     policies = sorted({result.policy for result in results})
     by_key = {(result.task, result.policy): result for result in results}
+    by_key.update({(all_tasks, result.policy): result for result in pool(results, lambda task: all_tasks)})
+    columns = [*tasks, all_tasks]
     width = 0.8 / len(policies)
-    figure, axes = plt.subplots(figsize=(max(6.0, 1.0 + 0.9 * len(tasks) * max(1, len(policies)) ** 0.5), 4.0))
+    figure, axes = plt.subplots(figsize=(max(6.0, 1.0 + 0.9 * len(columns) * max(1, len(policies)) ** 0.5), 4.2))
     for index, policy in enumerate(policies):
-        offsets = [position - 0.4 + width * (index + 0.5) for position in range(len(tasks))]
-        counts = [by_key.get((task, policy)) for task in tasks]
-        heights = [100 * count.success_rate if count else 0.0 for count in counts]
-        errors = [[100 * (count.success_rate - count.interval[0]) if count else 0.0 for count in counts],
-                  [100 * (count.interval[1] - count.success_rate) if count else 0.0 for count in counts]]
-        bars = axes.bar(offsets, heights, width=width, label=policy, yerr=errors, capsize=2,
-                        error_kw={"elinewidth": 0.8})
+        offsets = np.array([position - 0.4 + width * (index + 0.5) for position in range(len(columns))])
+        counts = [by_key.get((task, policy)) for task in columns]
+        heights = np.array([100 * count.success_rate if count else 0.0 for count in counts])
+        bars = axes.bar(offsets, heights, width=width, label=policy)
+        for intervals, shift, style in (([count.cluster if count else (math.nan, math.nan) for count in counts], 0.0,
+                                         {"color": "black", "elinewidth": 1.2, "capsize": 2}),
+                                        ([count.interval if count else (math.nan, math.nan) for count in counts],
+                                         width * 0.3, {"color": "0.55", "elinewidth": 0.7, "capsize": 0})):
+            low, high = (100 * np.array([interval[side] for interval in intervals]) for side in (0, 1))
+            shown = ~np.isnan(low)
+            if shown.any():
+                axes.errorbar(offsets[shown] + shift, heights[shown], fmt="none",
+                              yerr=np.vstack([heights[shown] - low[shown], high[shown] - heights[shown]]), **style)
         for bar, count in zip(bars, counts, strict=True):
             if count is not None:
                 axes.annotate(f"n={count.episodes}", (bar.get_x() + bar.get_width() / 2, 1.0), ha="center",
                               va="bottom", fontsize=6, rotation=90)
-    axes.set_xticks(range(len(tasks)), tasks, rotation=30, ha="right")
-    axes.set_ylabel("success rate (%), Wilson 95% interval")
+    axes.axvline(len(tasks) - 0.5, color="0.7", linewidth=0.8)
+    axes.set_xticks(range(len(columns)), columns, rotation=30, ha="right")
+    axes.set_ylabel("success rate (%)")
     axes.set_ylim(0, 110)
-    axes.set_title(title)
-    axes.legend()
+    axes.set_title(f"{title}\nblack: 95% cluster interval (all tasks: over tasks; a task: over its demonstration sets), "
+                   f"grey: per episode (Wilson)", fontsize=8)
+    axes.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=120)

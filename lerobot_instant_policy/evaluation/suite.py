@@ -8,10 +8,12 @@ Protocol. For every task and every demonstration set ``s = 0 … demo_sets − 1
   own seeds, disjoint from the other sets' and from every evaluation seed), kept between runs;
 * LeRobot's own ``lerobot-eval`` runs the policy reading them for ``episodes`` episodes on seeds
   ``eval_seed + episodes · s …`` (``lerobot-eval`` seeds episode ``i`` with ``--seed + i``), so every set meets its
-  own scenes and every policy meets the same scenes;
+  own scenes and every policy meets the same scenes; it runs with ``evaluation.lerobot_eval_seeds``'s wrapper, which
+  keeps the seed of every episode, as lerobot-eval reports it, in ``eval_info.json``;
 * with ``swap``, the policy instead reads the demonstrations of another task of the suite, one that asks for
-  something else (``swap_sources``: the same place in the next task group; the same seeds), relabelled as this
-  task's: the control that tells reading the demonstrations from a prior that solves the task alone.
+  something else (``swap_sources``: a permutation, every task's demonstrations read by one other task, of another
+  task group; the same seeds), relabelled as this task's: the control that tells reading the demonstrations from a
+  prior that solves the task alone.
 
 Seeds come in two disjoint splits (``SEED_SPLITS``): ``dev`` (demonstrations from seed 0, episodes from 1000), on
 which every study, option and checkpoint is chosen, and ``test`` (demonstrations from 50,000, episodes from 60,000),
@@ -19,9 +21,11 @@ run once per shipped candidate and reported. ``make demo`` uses neither. ``succe
 (``held``, the default, or ``instant``; ``sim.env``).
 
 Outputs under ``out``: ``demos/<task>-n<N>-s<seed>[-from-<source>]`` (the recorded sets), ``runs/<run name>/<task>/
-set-<s>`` (each ``lerobot-eval`` output directory, with ``suite_cell.json``: the settings that decided its result and
-the cell's seeds and demonstration fingerprint, ``evaluation.manifest``; ``resume`` keeps the finished cells evaluated
-with the same settings and evaluates the rest); ``evaluation.success_table`` pools the sets per task.
+set-<s>`` (each ``lerobot-eval`` output directory, with ``suite_cell.json``: the settings that decided its result,
+the cell's seeds and demonstration fingerprint, and every condition that changes its outcome resolved for the cell
+(``cell_conditions``: the checkpoint's SHA-256, the hold steps, the step limit, …), ``evaluation.manifest``;
+``resume`` keeps the finished cells evaluated with the same settings and conditions, the video size aside, and
+evaluates the rest); ``evaluation.success_table`` pools the sets per task.
 """
 
 from __future__ import annotations
@@ -37,8 +41,9 @@ from pathlib import Path
 
 from ..sim.env import SUCCESS_CRITERIA
 from ..sim.recording import record
+from ..sim.task_api import get_task
 from . import metaworld_suite
-from .manifest import CELL_FILE, cell_identity
+from .manifest import CELL_FILE, cell_identity, checkpoint_fingerprint
 from .success_table import collect_results, format_table, task_group, write_table
 
 ENV_TYPE = "bullet_tabletop"
@@ -50,6 +55,7 @@ SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demo
 # size (rendering changes no observation)
 NOT_RESULT_SETTINGS = ("out", "demo_sets", "run_name", "resume", "split", "env_type")
 VIDEO_ENV_ARGS = ("--env.render_size=",)
+LEROBOT_EVAL = "lerobot_instant_policy.evaluation.lerobot_eval_seeds"  # lerobot-eval, keeping each episode's seed
 
 
 class SuiteError(ValueError):
@@ -61,8 +67,10 @@ class SuiteEnv:
     """What the protocol does differently in one env: its ``policies``, the settings that apply to it alone
     (``fields``: recorded per cell; other envs' fields must keep their defaults), how it records a demonstration set
     (``record(settings, task, demos, seed, source)``), the swap control's task groups (``group_of``), its flags on
-    every ``lerobot-eval`` call (``eval_flags(settings)``) and its own checks (``check(settings)``: a message or
-    ``None``)."""
+    every ``lerobot-eval`` call (``eval_flags(settings)``), its own checks (``check(settings)``: a message or
+    ``None``) and its part of a cell's conditions (``conditions(settings, task, env_values)``: the success criterion,
+    hold steps, step limit, video size, observation settings; ``env_values``: the ``--env.KEY=VALUE`` arguments by
+    key)."""
 
     policies: tuple[str, ...]
     fields: tuple[str, ...]
@@ -70,6 +78,7 @@ class SuiteEnv:
     group_of: Callable[[str], str]
     eval_flags: Callable[..., list[str]]
     check: Callable[..., str | None]
+    conditions: Callable[..., dict]
 
 
 @dataclass(frozen=True)
@@ -172,22 +181,25 @@ def check_seeds(num_demos: int, demo_seed: int, eval_seed: int, episodes: int, d
 
 
 def swap_sources(tasks: list[str], group_of: Callable[[str], str]) -> dict[str, str]:
-    """Each task's source of demonstrations in the context-swap control: the task at the same place (cyclically) in
-    the next group of ``tasks`` by ``group_of`` (groups in order of first appearance), so that a task reads the
-    demonstrations of one that asks for something else; with a single group, the task half the list ahead."""
+    """Each task's source of demonstrations in the context-swap control, a permutation of ``tasks`` (every task's
+    demonstrations read by exactly one other task): the tasks listed group by group (``group_of``; groups in order of
+    first appearance, tasks in their order), each reads the task ``shift`` places further on, cyclically, with
+    ``shift`` the size of the largest group. No group spans ``shift`` places, so when no group holds more than half
+    the tasks every task reads one of another group, one that asks for something else; where the groups are of one
+    size, the task at the same place in the next group. When a group holds more than half (one group: all), no
+    permutation can give every task another group's; ``shift`` is then half the list, so that every task outside
+    that group and as many of its own as there are tasks outside it read another group's, and no task its own."""
+    tasks = list(dict.fromkeys(tasks))
     if len(tasks) < 2:
         raise SuiteError("the context swap needs at least two tasks")
     groups: dict[str, list[str]] = {}
     for task in tasks:
         groups.setdefault(group_of(task), []).append(task)
-    if len(groups) == 1:
-        return {task: tasks[(index + len(tasks) // 2) % len(tasks)] for index, task in enumerate(tasks)}
-    members = list(groups.values())
-    sources = {}
-    for index, group in enumerate(members):
-        following = members[(index + 1) % len(members)]
-        sources.update({task: following[place % len(following)] for place, task in enumerate(group)})
-    return sources
+    ordered = [task for group in groups.values() for task in group]
+    largest = max(len(group) for group in groups.values())
+    shift = largest if 2 * largest <= len(ordered) else len(ordered) // 2
+    source = {task: ordered[(index + shift) % len(ordered)] for index, task in enumerate(ordered)}
+    return {task: source[task] for task in tasks}
 
 
 def demo_root(out: Path, task: str, num_demos: int, demo_seed: int, obs_type: str = "pointcloud",
@@ -234,20 +246,35 @@ def bullet_check(settings: SuiteSettings) -> str | None:
     return None
 
 
+def bullet_conditions(settings: SuiteSettings, task: str, env_values: dict[str, str]) -> dict:
+    """``bullet_tabletop``'s part of a cell's conditions: the criterion, the steps the goal state must hold (the
+    task's ``success_hold_steps`` when held, else 1), the step limit (``--env.episode_length`` or the task's), the
+    video size (``--env.render_size`` or the env config's) and the observation path."""
+    from ..sim.configuration_bullet_tabletop import BulletTabletopEnvConfig
+
+    task_class = get_task(task, settings.task_module)
+    return {"success": settings.success,
+            "hold_steps": task_class.success_hold_steps if settings.success == "held" else 1,
+            "episode_length": int(env_values.get("episode_length", task_class.max_episode_steps)),
+            "render_size": int(env_values.get("render_size", BulletTabletopEnvConfig.render_size)),
+            "obs_type": settings.obs_type, "pointcloud_every": None}
+
+
 SUITE_ENVS = {
     ENV_TYPE: SuiteEnv(POLICIES, ("task_module", "obs_type", "success"), record_demonstrations,
-                       task_group, bullet_eval_flags, bullet_check),
+                       task_group, bullet_eval_flags, bullet_check, bullet_conditions),
     metaworld_suite.ENV_TYPE: SuiteEnv(metaworld_suite.POLICIES, ("episode_length", "pointcloud_every"),
                                        metaworld_suite.record_demonstrations, metaworld_suite.swap_group,
-                                       metaworld_suite.eval_flags, metaworld_suite.check),
+                                       metaworld_suite.eval_flags, metaworld_suite.check, metaworld_suite.conditions),
 }
 
 
 def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path | None, eval_seed: int,
                          output_dir: Path) -> list[str]:
-    """The ``lerobot-eval`` command line for one task and demonstration set."""
+    """The ``lerobot-eval`` command line for one task and demonstration set (run through ``LEROBOT_EVAL``, which
+    keeps each episode's seed in ``eval_info.json``)."""
     command = [
-        str(Path(sys.executable).with_name("lerobot-eval")),
+        sys.executable, "-m", LEROBOT_EVAL,
         f"--env.type={settings.env_type}",
         f"--env.task={task}",
         f"--policy.path={settings.policy_path}" if settings.policy_path else f"--policy.type={settings.policy}",
@@ -274,15 +301,38 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
         settings.env.record(settings, task, demos, seed, source or task)
     output_dir = cell_dir(settings.runs_dir, task, demo_set)
     command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
+    conditions = cell_conditions(settings, task)
     run_lerobot_eval(command, settings.runs_dir, task, demo_set)
-    write_cell_record(settings, task, demo_set, source)
+    write_cell_record(settings, task, demo_set, source, conditions)
     return output_dir
 
 
-def write_cell_record(settings: SuiteSettings, task: str, demo_set: int, source: str | None) -> None:
-    """``suite_cell.json`` of a finished cell: what decided its result (``cell_record``) and, under ``"cell"``, its
-    seeds and demonstration set (``manifest.cell_identity``)."""
+def env_arg_values(env_args: tuple[str, ...]) -> dict[str, str]:
+    """``--env.KEY=VALUE`` arguments as ``{KEY: VALUE}`` (the last of a repeated key)."""
+    return dict(arg.removeprefix("--env.").split("=", 1) for arg in env_args if arg.startswith("--env.") and "=" in arg)
+
+
+def cell_conditions(settings: SuiteSettings, task: str) -> dict:
+    """The ``"conditions"`` record of a cell of ``task`` (JSON-ready, ``manifest.CONDITIONS``): the SHA-256 of the
+    checkpoint (``None``: the policy loads none), the policy options, the env arguments but the video size, and the
+    env's own (``SuiteEnv.conditions``)."""
+    checkpoint = None
+    if settings.policy_path:
+        path = Path(settings.policy_path)
+        checkpoint = checkpoint_fingerprint(path) if path.is_dir() else f"not a local directory: {path}"
+    return {"checkpoint_sha256": checkpoint, "policy_options": list(settings.policy_args),
+            "env_args": [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)],
+            **settings.env.conditions(settings, task, env_arg_values(settings.env_args))}
+
+
+def write_cell_record(settings: SuiteSettings, task: str, demo_set: int, source: str | None,
+                      conditions: dict | None) -> None:
+    """``suite_cell.json`` of a finished cell: what decided its result (``cell_record``), under ``"cell"`` its
+    seeds and demonstration set (``manifest.cell_identity``) and under ``"conditions"`` what it ran under
+    (``cell_conditions``, taken before it ran; ``None`` for a cell kept from an earlier run: unknown, not written)."""
     record = cell_record(settings, source)
+    if conditions is not None:
+        record["conditions"] = conditions
     record["cell"] = cell_identity(task, demo_set, settings.eval_seed_of(demo_set), settings.episodes,
                                    settings.demo_seed_of(demo_set), settings.num_demos,
                                    settings.demos_of(task, demo_set, source), source)
@@ -327,7 +377,7 @@ def run_suite(settings: SuiteSettings, tasks: list[str], report: Callable[[str],
             if (task, demo_set) in kept:
                 runs.append(cell_dir(settings.runs_dir, task, demo_set))
                 if "cell" not in json.loads((runs[-1] / CELL_FILE).read_text()):  # kept from before cells had one
-                    write_cell_record(settings, task, demo_set, source)
+                    write_cell_record(settings, task, demo_set, source, conditions=None)
                 report(f"{task}, set {demo_set}{with_demos}: kept from the earlier run -> {runs[-1]}")
                 continue
             started = time.perf_counter()
@@ -361,10 +411,13 @@ def cell_record(settings: SuiteSettings, source: str | None) -> dict:
 
 def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> set[tuple[str, int]]:
     """``(task, set)`` of the finished cells (``eval_info.json`` written) of ``settings.runs_dir``; a ``SuiteError``
-    naming what differs when one was evaluated with other settings or has no ``CELL_FILE`` (nothing is deleted)."""
+    naming what differs when one was evaluated with other settings or conditions (the video size aside: it changes
+    no observation; conditions only where the cell recorded them) or has no ``CELL_FILE`` (nothing is deleted)."""
     kept = set()
     for task, source in sources.items():
         expected = cell_record(settings, source)
+        expected_conditions = {key: value for key, value in cell_conditions(settings, task).items()
+                               if key != "render_size"}
         for demo_set in range(settings.demo_sets):
             cell = cell_dir(settings.runs_dir, task, demo_set)
             if not (cell / "eval_info.json").is_file():
@@ -374,7 +427,10 @@ def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> se
                                  f"again without --resume, or give this run another --run-name")
             recorded = json.loads((cell / CELL_FILE).read_text())
             recorded.pop("cell", None)  # the cell's seeds and demonstrations, not a setting
+            conditions = recorded.pop("conditions", None)
             changed = sorted(key for key in expected.keys() | recorded.keys() if expected.get(key) != recorded.get(key))
+            if conditions is not None:
+                changed += sorted(key for key, value in expected_conditions.items() if conditions.get(key) != value)
             if changed:
                 raise SuiteError(f"--resume: {cell} was evaluated with other settings ({', '.join(changed)}); resume "
                                  f"with the same settings, or give this run another --run-name")

@@ -1,4 +1,4 @@
-"""``lerobot-ip-bench``: the benchmarks print measured JSON, compare one variant at a time, refuse bad sizes."""
+"""``lerobot-ip-bench``: the benchmarks print measured JSON of one setting and refuse bad sizes."""
 
 from __future__ import annotations
 
@@ -18,98 +18,55 @@ def test_generate_benchmark_prints_measured_json(capsys):
     assert len(result["runs_frames_per_s_one_worker"]) == 1
 
 
-def test_train_step_benchmark_compares_fused_and_loop_adamw_on_the_ladder_recipe(capsys):
+def test_train_step_benchmark_times_one_setting_of_the_ladder_recipe(capsys):
     from lerobot_instant_policy.cli.bench import main
 
     assert main(["train-step", "--batch-size", "2", "--repeats", "1", "--reencode-action-clouds", "false",
-                 "--action-scene-graph", "false", "--num-frequencies", "4", "--compare-fused-adamw", "--json"]) == 0
+                 "--action-scene-graph", "false", "--num-frequencies", "4", "--fused-adamw", "false", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
-    assert result["figure"] == "samples_per_s" and "fused_adamw" not in result
-    assert result["action_scene_graph"] is False and result["num_frequencies"] == 4
-    assert len(result["runs_fused"]) == len(result["runs_loop"]) == 3
-    assert min(result["runs_fused"] + result["runs_loop"]) > 0
-    assert result["fused_over_loop"] == round(result["fused"] / result["loop"], 3)
+    assert result["benchmark"] == "train-step" and result["batch"] == 2 and result["samples_per_s"] > 0
+    assert result["action_scene_graph"] is False and result["num_frequencies"] == 4 and result["fused_adamw"] is False
+    assert result["frame_cache"] is True and result["use_amp"] is False and len(result["runs_s_per_step"]) == 1
 
 
-def fake_timing(monkeypatch, bench: str, option: str, figure: str, on: float, off: float) -> list[dict]:
-    """Replace ``bench_policy.<bench>`` by a fake whose ``figure`` is ``on`` or ``off`` as the config ``option`` is;
-    returns the keyword arguments of every call, in order."""
+def fake_bench(monkeypatch, bench: str) -> list[dict]:
+    """Replace ``bench_policy.<bench>`` by a fake that records its keyword arguments, in order."""
     from lerobot_instant_policy.benchmarks import policy as bench_policy
 
     seen = []
-
-    def fake_bench(preset, **kwargs):
-        seen.append(kwargs)
-        return {"benchmark": bench, option: kwargs[option], figure: on if kwargs[option] else off}
-
-    monkeypatch.setattr(bench_policy, bench, fake_bench)
+    monkeypatch.setattr(bench_policy, bench, lambda preset, **kwargs: seen.append(kwargs) or {"benchmark": bench})
     return seen
 
 
-def test_train_step_benchmark_alternates_compiled_and_eager_layers(capsys, monkeypatch):
-    """``--compare-compile-model`` hands ``compile_model`` to the config in alternation (the compiled training step
-    itself is tested equal to the eager one in test_instant_policy_policy.py; compiling the small preset takes
-    minutes, so the timing is faked here)."""
+def test_single_setting_flags_reach_the_benchmarks(capsys, monkeypatch):
+    """``--compile-model``, ``--amp``, ``--frame-cache``, ``--dense-attention`` and ``--compile-inference`` set their
+    option for the one run (compiling the small preset takes minutes, so the benchmark is faked here)."""
     from lerobot_instant_policy.cli.bench import main
 
-    seen = fake_timing(monkeypatch, "bench_train_step", "compile_model", "samples_per_s", 2.0, 1.0)
-    assert main(["train-step", "--batch-size", "8", "--amp", "true", "--compare-compile-model", "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
-    assert [kwargs["compile_model"] for kwargs in seen] == [True, False] * 3
-    assert all(kwargs["use_amp"] and kwargs["batch_size"] == 8 for kwargs in seen)
-    assert result["compiled_over_eager"] == 2.0 and "compile_model" not in result
-    assert main(["train-step", "--compile-model", "true", "--json"]) == 0
-    assert seen[-1]["compile_model"] is True
-
-
-@pytest.mark.parametrize("flag, option, on_name, off_name, ratio", [
-    ("--compare-frame-cache", "frame_cache", "cached", "live", "cached_over_live"),
-    ("--compare-amp", "use_amp", "amp", "float32", "amp_over_float32"),
-])
-def test_train_step_benchmark_alternates_the_compared_option(capsys, monkeypatch, flag, option, on_name, off_name,
-                                                            ratio):
-    """``--compare-frame-cache`` and ``--compare-amp`` hand their option to the config in alternation, the rest of
-    the settings unchanged (the real timing runs in the AdamW comparison above; cached scene nodes are tested equal to
-    live encoding in test_frame_encodings.py, training under autocast in test_mixed_precision.py; autocast is 8x
-    slower than float32 on CPUs without bfloat16 kernels, so the timing is faked here)."""
-    from lerobot_instant_policy.cli.bench import main
-
-    seen = fake_timing(monkeypatch, "bench_train_step", option, "samples_per_s", 3.0, 2.0)
-    assert main(["train-step", "--batch-size", "2", "--num-frequencies", "6", flag, "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
-    assert [kwargs[option] for kwargs in seen] == [True, False] * 3
-    assert all(kwargs["batch_size"] == 2 and kwargs["num_frequencies"] == 6 for kwargs in seen)
-    assert result["figure"] == "samples_per_s" and option not in result
-    assert len(result[f"runs_{on_name}"]) == len(result[f"runs_{off_name}"]) == 3
-    assert result[on_name] == 3.0 and result[off_name] == 2.0 and result[ratio] == 1.5
-
-
-def test_inference_benchmark_alternates_compiled_and_eager_sampling(capsys, monkeypatch):
-    """``--compare-compile-inference`` hands ``compile_inference`` to the config in alternation (compiled sampling is
-    tested equal to eager sampling in test_instant_policy_policy.py; the timing is faked here)."""
-    from lerobot_instant_policy.cli.bench import main
-
-    seen = fake_timing(monkeypatch, "bench_inference", "compile_inference", "ms_per_control_step", 10.0, 15.0)
-    assert main(["inference", "--action-scene-graph", "false", "--compare-compile-inference", "--json"]) == 0
-    result = json.loads(capsys.readouterr().out)
-    assert [kwargs["compile_inference"] for kwargs in seen] == [True, False] * 3
-    assert all(kwargs["action_scene_graph"] is False for kwargs in seen)
-    assert result["compiled"] == 10.0 and result["eager"] == 15.0 and "compile_inference" not in result
-    assert result["compiled_over_eager"] == round(10.0 / 15.0, 3)
+    seen = fake_bench(monkeypatch, "bench_train_step")
+    assert main(["train-step", "--batch-size", "8", "--amp", "true", "--compile-model", "true", "--frame-cache",
+                 "false", "--dense-attention", "false", "--json"]) == 0
+    assert seen == [{"batch_size": 8, "repeats": 5, "use_amp": True, "compile_model": True, "frame_cache": False,
+                     "dense_attention": False}]
+    seen = fake_bench(monkeypatch, "bench_inference")
     assert main(["inference", "--compile-inference", "true", "--json"]) == 0
-    assert seen[-1]["compile_inference"] is True
-    with pytest.raises(SystemExit) as exit_info:
-        main(["inference", "--compare-compile-inference", "--compare-dense-attention"])
-    assert exit_info.value.code == 2 and "compare one variant at a time" in capsys.readouterr().err
+    assert seen == [{"repeats": 5, "policy_path": None, "compile_inference": True}]
+    capsys.readouterr()
 
 
-def test_train_step_benchmark_compares_one_variant_at_a_time(capsys):
+@pytest.mark.parametrize("argv, message", [
+    (["inference", "--compare-dense-attention"], "unrecognized arguments: --compare-dense-attention"),
+    (["train-step", "--compare-amp"], "unrecognized arguments: --compare-amp"),
+    (["lerobot-train", "--root", "data"], "invalid choice: 'lerobot-train'"),
+])
+def test_the_comparisons_are_not_installed(capsys, argv, message):
+    """Two settings in alternation and ``lerobot-train`` end to end are the workbench's (``python -m
+    workbench.cli.bench``)."""
     from lerobot_instant_policy.cli.bench import main
 
     with pytest.raises(SystemExit) as exit_info:
-        main(["train-step", "--compare-amp", "--compare-compile-model"])
-    assert exit_info.value.code == 2
-    assert "compare one variant at a time" in capsys.readouterr().err
+        main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flag", ["--batch-size", "--repeats"])

@@ -1,5 +1,6 @@
-"""``lerobot-ip-action-error``: offline action error of the shipped checkpoint on a tiny held-out pseudo-task
-dataset."""
+"""``lerobot-ip-action-error``: offline action error of the shipped checkpoint at one setting of K, N and L on a tiny
+held-out pseudo-task dataset (the sweep over several settings is the workbench's, tested in
+workbench/tests/test_action_error_sweep.py)."""
 
 from __future__ import annotations
 
@@ -29,21 +30,21 @@ def held_out_root(tmp_path_factory):
 
 
 def _run(root, **overrides):
-    settings = dict(tasks=2, frames_per_task=1, seed=0, ks=[1, 4], ns=[2], ls=[10], untrained=False)
+    settings = dict(tasks=2, frames_per_task=1, seed=0, k=4, n=2, l=10, untrained=False)
     return ae.action_error(SHIPPED, root, **{**settings, **overrides})
 
 
-def test_action_error_structure_determinism_and_k(held_out_root, monkeypatch):
+def test_action_error_structure_and_determinism(held_out_root, monkeypatch):
     from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork
 
     denoise, calls = InstantPolicyNetwork.denoise, []
     monkeypatch.setattr(InstantPolicyNetwork, "denoise", lambda self, *a, **k: calls.append(1) or denoise(self, *a, **k))
     first = _run(held_out_root)
-    # K = 4 and K = 1 on 2 frames, then the K = 4 swap on 2 frames: each prediction denoised exactly K times
-    assert len(calls) == 2 * 4 + 2 * 1 + 2 * 4
+    # K = 4 on 2 frames, then the K = 4 swap on 2 frames: each prediction denoised exactly K times
+    assert len(calls) == 2 * 4 + 2 * 4
     again = _run(held_out_root)
-    rows = {row["K"]: row for row in first["settings"]}
-    assert [(row["K"], row["N"], row["L"]) for row in first["settings"]] == [(4, 2, 10), (1, 2, 10)]
+    (own,) = first["settings"]
+    assert (own["K"], own["N"], own["L"]) == (4, 2, 10) and "untrained" not in first
     assert first["tasks"] == 2 and first["frames"] == 2 and first["horizon_T"] == 8
     for row in first["settings"] + [first["hold"], first["swap"]]:
         for key in ("translation_mm", "translation_mm_first_step", "rotation_deg", "gripper_accuracy"):
@@ -51,12 +52,11 @@ def test_action_error_structure_determinism_and_k(held_out_root, monkeypatch):
         assert 0 <= row["gripper_accuracy"] <= 1 and row["steps"] == 8 * row["frames"]
     strip = [{k: v for k, v in row.items() if k != "ms_per_prediction"} for row in first["settings"]]
     assert strip == [{k: v for k, v in row.items() if k != "ms_per_prediction"} for row in again["settings"]]
-    assert (rows[1]["translation_mm"], rows[1]["rotation_deg"]) != (rows[4]["translation_mm"], rows[4]["rotation_deg"])
     # the swap runs the same frames and noise with the other task's demonstrations: a different prediction
-    assert first["swap"]["frames"] == 2
-    assert (first["swap"]["translation_mm"], first["swap"]["rotation_deg"]) != (rows[4]["translation_mm"],
-                                                                              rows[4]["rotation_deg"])
-    assert first["context_gain"]["translation"] == round(first["swap"]["translation_mm"] / rows[4]["translation_mm"], 3)
+    assert first["swap"]["frames"] == 2 and (first["swap"]["K"], first["swap"]["N"], first["swap"]["L"]) == (4, 2, 10)
+    assert (first["swap"]["translation_mm"], first["swap"]["rotation_deg"]) != (own["translation_mm"],
+                                                                              own["rotation_deg"])
+    assert first["context_gain"]["translation"] == round(first["swap"]["translation_mm"] / own["translation_mm"], 3)
     assert set(first["phases"]) == set(ae.PHASES)
     assert sum(row["frames"] for row in first["phases"].values()) == first["frames"]
     json.dumps(first)
@@ -111,24 +111,53 @@ def test_samples_per_prediction_reaches_every_prediction_from_the_command_line(h
     monkeypatch.setattr(InstantPolicyNetwork, "sample_actions",
                         lambda self, *a, **k: counts.append(k["num_samples"]) or sample(self, *a, **k))
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--tasks", "2",
-                              "--frames-per-task", "1", "--K", "1", "--N", "2", "--L", "10", "--default", "1,2,10",
-                              "--no-untrained", "--samples-per-prediction", "3"]) == 0
+                              "--frames-per-task", "1", "--K", "1", "--N", "2", "--L", "10", "--no-untrained",
+                              "--samples-per-prediction", "3"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["samples_per_prediction"] == 3 and counts == [3] * 4  # 2 frames own, 2 swapped
     assert math.isfinite(result["settings"][0]["translation_mm"])
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root),
                               "--samples-per-prediction", "0"]) == 2
-    assert "samples per prediction must be in 1…64" in capsys.readouterr().err
+    assert "samples_per_prediction (S) must be an integer in the supported range 1…64" in capsys.readouterr().err
 
-def test_bad_inputs_give_clear_errors(held_out_root, tmp_path, capsys):
+
+def test_the_command_line_gives_the_figures_a_training_run_reads(held_out_root, capsys):
+    """The command line ``workbench/standing.py`` and ``workbench/train_rounds.py`` run (one setting, no untrained
+    reference, the device named) prints JSON with the own error, holding still's and the context gain."""
+    assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--repo-id", "local/val",
+                              "--tasks", "2", "--frames-per-task", "1", "--K", "4", "--N", "2", "--L", "10",
+                              "--no-untrained", "--json", "--device", "cpu"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["settings"][0]["translation_mm"] > 0 and result["hold"]["translation_mm"] > 0
+    assert result["context_gain"]["translation"] == round(
+        result["swap"]["translation_mm"] / result["settings"][0]["translation_mm"], 3)
+
+
+def test_bad_inputs_give_clear_errors(held_out_root, tmp_path, capsys, monkeypatch):
     with pytest.raises(ae.ActionErrorError, match=r"N can be at most 2"):
-        _run(held_out_root, ns=[3])
+        _run(held_out_root, n=3)
     with pytest.raises(EvaluationError, match="does not exist"):
         _run(tmp_path / "missing")
-    with pytest.raises(ae.ActionErrorError, match="K"):
-        _run(held_out_root, ks=[0])
     code = action_error_main(["--policy-path", str(SHIPPED), "--root", str(tmp_path / "missing"), "--json"])
     assert code == 2 and "does not exist" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:  # one setting: a list is the workbench's sweep
+        action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--K", "1,2,4,8"])
+    assert exit_info.value.code == 2 and "workbench.cli.action_error_sweep" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("setting, message", [
+    (dict(k=0), r"inference_steps \(K\) must be an integer in the supported range 1…8, got 0"),
+    (dict(k=9), r"inference_steps \(K\) must be an integer in the supported range 1…8, got 9"),
+    (dict(n=0), r"num_demos \(N\) must be an integer in the supported range 1…8, got 0"),
+    (dict(l=1), r"num_waypoints \(L\) must be an integer in the supported range 2…32, got 1"),
+    (dict(samples_per_prediction=65), r"samples_per_prediction \(S\) must be an integer in the supported range 1…64"),
+])
+def test_k_n_l_and_s_are_judged_by_the_configs_range_check_before_the_weights_load(held_out_root, monkeypatch,
+                                                                                   setting, message):
+    """One range check for K, N, L and S: the config's (model/bounds.py, run when a config is built), its message."""
+    monkeypatch.setattr(ae, "load_policy", lambda *args, **kwargs: pytest.fail("the weights were loaded"))
+    with pytest.raises(ae.ActionErrorError, match=message):
+        _run(held_out_root, **setting)
 
 
 def test_phases_split_the_live_episodes_into_thirds_and_pool_back_to_the_whole(held_out_root):

@@ -1,34 +1,58 @@
-"""Columns joined only when comparable, and compared episode by episode: each suite cell records its seeds and
-demonstration set, ``lerobot-ip-eval-table`` refuses columns whose seeds or demonstration sets differ, and the paired
-difference with its cluster bootstrap interval on small known cases."""
+"""Columns joined only when comparable, and compared episode by episode: each suite cell records its seeds (as
+lerobot-eval reports them), demonstration set and conditions (checkpoint digest, policy options, success criterion,
+hold steps, step limit, env arguments, video size); ``lerobot-ip-eval-table`` refuses columns whose cells, seeds,
+demonstration sets or conditions differ (each refusal tested; a condition named with ``--allow-difference`` is
+joined), reads manifests written before a field was recorded and says what it could not check, and the paired
+difference with its cluster bootstrap interval (over tasks, or cells) on small known cases and on the committed
+MetaWorld manifest."""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lerobot_instant_policy.cli.eval_table import main as eval_table
-from lerobot_instant_policy.evaluation import suite
-from lerobot_instant_policy.evaluation.manifest import CELL_FILE, CellOutcome, ManifestError, column_manifest
+from lerobot_instant_policy.evaluation import lerobot_eval_seeds, suite
+from lerobot_instant_policy.evaluation.manifest import (
+    CELL_FILE,
+    CONDITIONS,
+    CellOutcome,
+    ManifestError,
+    checkpoint_fingerprint,
+    column_manifest,
+)
 from lerobot_instant_policy.evaluation.paired import paired_difference
-from lerobot_instant_policy.evaluation.suite import SuiteSettings
+from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings
+from lerobot_instant_policy.sim.task_api import get_task
 
 TASKS = ["push_button", "open_drawer"]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture
 def fake_suite(monkeypatch):
     """``run_suite`` with lerobot-eval and the recorder replaced: each cell's episodes succeed as ``outcomes[policy
-    name][(task, set)]`` says, each demonstration set is a file whose bytes name its source and seed."""
+    name][(task, set)]`` says, and the stand-in reports the seeds its command names (``lerobot_eval_seeds``), or
+    none, or others, as ``seeds[policy name]`` says (``"as run"`` by default: ``"none"``, or an offset); each
+    demonstration set is a file whose bytes name its source and seed."""
     outcomes: dict[str, dict[tuple[str, int], list[bool]]] = {}
+    seeds: dict[str, str | int] = {}
 
     def fake_lerobot_eval(command, runs_dir, task, demo_set):
         output_dir = runs_dir / task / f"set-{demo_set}"
         output_dir.mkdir(parents=True, exist_ok=True)
         successes = outcomes[runs_dir.name][(task, demo_set)]
-        info = {"per_task": [{"task_group": task, "task_id": 0, "metrics": {"successes": successes}}]}
+        metrics = {"successes": successes}
+        report = seeds.get(runs_dir.name, "as run")
+        if report != "none":
+            first = int(next(part for part in command if part.startswith("--seed=")).split("=")[1])
+            metrics["seeds"] = [first + (0 if report == "as run" else report) + i for i in range(len(successes))]
+        info = {"per_task": [{"task_group": task, "task_id": 0, "metrics": metrics}]}
         (output_dir / "eval_info.json").write_text(json.dumps(info))
         return output_dir
 
@@ -42,9 +66,11 @@ def fake_suite(monkeypatch):
     monkeypatch.setitem(suite.SUITE_ENVS, "bullet_tabletop",
                         dataclasses.replace(suite.SUITE_ENVS["bullet_tabletop"], record=fake_record))
 
-    def run(settings: SuiteSettings, cells: dict[tuple[str, int], list[bool]]):
+    def run(settings: SuiteSettings, cells: dict[tuple[str, int], list[bool]], tasks: list[str] = TASKS,
+            report_seeds: str | int = "as run"):
         outcomes[settings.name] = cells
-        suite.run_suite(settings, TASKS, report=lambda line: None)
+        seeds[settings.name] = report_seeds
+        suite.run_suite(settings, tasks, report=lambda line: None)
         return settings.runs_dir
 
     return run
@@ -66,6 +92,74 @@ def test_cells_record_their_seeds_and_demonstrations(fake_suite, tmp_path):
     nothing = fake_suite(SuiteSettings(policy="do_nothing", out=tmp_path, episodes=2, demo_sets=1), two_cells(
         [False, False], [False, False]))
     assert {cell["demo_fingerprint"] for cell in column_manifest(nothing)["cells"]} == {None}
+    assert {cell["seeds_reported"] for cell in manifest["cells"]} == {True}
+
+
+def fake_checkpoint(path: Path, weights: bytes) -> Path:
+    path.mkdir(parents=True)
+    (path / "model.safetensors").write_bytes(weights)
+    (path / "config.json").write_text("{}")
+    (path / "README.md").write_text("a model card")
+    return path
+
+
+def test_cells_record_the_conditions_they_ran_under(fake_suite, tmp_path):
+    """Each cell records the checkpoint's SHA-256 (over its files but the model card), the policy options, the
+    criterion and the task's hold steps, its step limit, the env arguments and the video size; ``--resume`` refuses
+    finished cells evaluated with another checkpoint."""
+    checkpoint = fake_checkpoint(tmp_path / "ckpt", b"weights")
+    settings = SuiteSettings(policy="instant_policy", policy_path=str(checkpoint), out=tmp_path, episodes=2,
+                             demo_sets=1, policy_args=("--policy.inference_steps=8",),
+                             env_args=("--env.render_size=64", "--env.depth_noise_std=0.002"))
+    runs = fake_suite(settings, two_cells([True, False], [False, False]))
+    cells = {cell["task"]: cell["conditions"] for cell in column_manifest(runs)["cells"]}
+    digest = hashlib.sha256()
+    for name in ("config.json", "model.safetensors"):
+        digest.update(name.encode() + b"\0" + (checkpoint / name).read_bytes())
+    drawer = get_task("open_drawer")
+    assert cells["open_drawer"] == {
+        "checkpoint_sha256": digest.hexdigest(), "policy_options": ["--policy.inference_steps=8"],
+        "env_args": ["--env.depth_noise_std=0.002"], "success": "held", "hold_steps": drawer.success_hold_steps,
+        "episode_length": drawer.max_episode_steps, "render_size": 64, "obs_type": "pointcloud",
+        "pointcloud_every": None}
+    assert drawer.success_hold_steps > 1 and cells["push_button"]["hold_steps"] == 1
+    assert checkpoint_fingerprint(checkpoint) == digest.hexdigest()
+    (checkpoint / "README.md").write_text("another model card")
+    assert checkpoint_fingerprint(checkpoint) == digest.hexdigest()
+    (checkpoint / "model.safetensors").write_bytes(b"other weights")
+    with pytest.raises(SuiteError, match="checkpoint_sha256"):
+        suite.run_suite(dataclasses.replace(settings, resume=True), TASKS, report=lambda line: None)
+
+
+def test_seeds_are_read_as_lerobot_eval_reports_them(fake_suite, tmp_path):
+    """A cell whose lerobot-eval report names other seeds than the suite asked for is refused; one with no report
+    (a run without ``lerobot_eval_seeds``) keeps the suite's seeds and says they were not reported."""
+    shifted = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1), two_cells([True, True], [True, True]),
+                         report_seeds=5)
+    with pytest.raises(ManifestError, match="lerobot-eval ran seeds 1005…1006, the cell records 1000…1001"):
+        column_manifest(shifted)
+    unreported = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, run_name="plain"),
+                            two_cells([True, True], [True, True]), report_seeds="none")
+    assert {cell["seeds_reported"] for cell in column_manifest(unreported)["cells"]} == {False}
+
+
+def test_lerobot_eval_seeds_keeps_what_eval_policy_reports(monkeypatch):
+    """The wrapper around LeRobot's ``eval_one`` adds the seeds its ``eval_policy`` call reported per episode to the
+    metrics that ``eval_info.json`` holds, and changes nothing else."""
+    from lerobot.scripts import lerobot_eval
+
+    def fake_eval_policy(**kwargs):
+        return {"per_episode": [{"episode_ix": i, "sum_reward": 0.0, "max_reward": 0.0, "success": i == 1,
+                                 "seed": kwargs["start_seed"] + i} for i in range(3)]}
+
+    monkeypatch.setattr(lerobot_eval, "eval_policy", fake_eval_policy)
+    monkeypatch.setattr(lerobot_eval, "eval_one", lerobot_eval.eval_one)
+    lerobot_eval_seeds.install()
+    lerobot_eval_seeds.install()  # once per process
+    metrics = lerobot_eval.eval_one(None, policy=None, env_preprocessor=None, env_postprocessor=None,
+                                    preprocessor=None, postprocessor=None, n_episodes=3, max_episodes_rendered=0,
+                                    videos_dir=None, return_episode_data=False, start_seed=60_000)
+    assert metrics["seeds"] == [60_000, 60_001, 60_002] and metrics["successes"] == [False, True, False]
 
 
 def test_table_joins_same_seeds_and_sets_and_refuses_others(fake_suite, tmp_path, capsys):
@@ -90,6 +184,109 @@ def test_table_joins_same_seeds_and_sets_and_refuses_others(fake_suite, tmp_path
                              two_cells([True, True], [True, True]))
     assert eval_table([f"demo_replay={replay}", f"other={other_demos}", "--out", str(out)]) == 2
     assert "different demonstration sets" in capsys.readouterr().err
+    fewer = fake_suite(SuiteSettings(out=tmp_path / "fewer", episodes=2, demo_sets=1),
+                       {("push_button", 0): [True, True]}, tasks=["push_button"])
+    assert eval_table([f"demo_replay={replay}", f"fewer={fewer}", "--out", str(out)]) == 2
+    assert "hold different cells (task, set): [('open_drawer', 0)]" in capsys.readouterr().err
+
+
+# Per condition: the settings of a column that differs from the base one in it (and in those named beside it).
+VARIANTS = {
+    "checkpoint": ({"policy_path": "other"}, ()),
+    "policy_options": ({"policy_args": ("--policy.inference_steps=8",)}, ()),
+    "success": ({"success": "instant"}, ("hold_steps",)),  # open_drawer then holds 1 step, not 5
+    "hold_steps": ({}, ()),  # open_drawer's hold steps changed in the task itself
+    "episode_length": ({"env_args": ("--env.episode_length=60",)}, ("env_args",)),
+    "env_args": ({"env_args": ("--env.depth_noise_std=0.002",)}, ()),
+    "render_size": ({"env_args": ("--env.render_size=64",)}, ()),
+}
+
+
+@pytest.mark.parametrize("condition", list(VARIANTS))
+def test_table_refuses_columns_that_differ_in_a_condition_unless_it_is_named(condition, fake_suite, tmp_path,
+                                                                           capsys, monkeypatch):
+    checkpoints = {name: str(fake_checkpoint(tmp_path / name, name.encode())) for name in ("base", "other")}
+    base = SuiteSettings(policy="instant_policy", policy_path=checkpoints["base"], out=tmp_path, episodes=2,
+                         demo_sets=1, run_name="base")
+    cells = two_cells([True, False], [True, True])
+    base_runs = fake_suite(base, cells)
+    changes, also = VARIANTS[condition]
+    if condition == "hold_steps":
+        monkeypatch.setattr(get_task("open_drawer"), "success_hold_steps", 9)
+    changes = {**changes, "policy_path": checkpoints[changes["policy_path"]]} if "policy_path" in changes else changes
+    variant_runs = fake_suite(dataclasses.replace(base, run_name="variant", **changes), cells)
+    columns = [f"base={base_runs}", f"variant={variant_runs}", "--out", str(tmp_path / "table")]
+    assert eval_table(columns) == 2
+    assert f"differ in {condition}" in (error := capsys.readouterr().err)
+    assert f"--allow-difference {condition}" in error and CONDITIONS[condition][1] in error
+    allowed = [argument for name in (condition, *also) for argument in ("--allow-difference", name)]
+    assert eval_table([*columns, *allowed, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["allowed_differences"] == sorted([condition, *also])
+
+
+def test_checkpoints_and_policy_options_are_compared_where_they_apply(fake_suite, tmp_path, capsys):
+    """A replay column (no checkpoint, no options) beside a checkpoint with options is no difference; an unknown
+    ``--allow-difference`` name is refused."""
+    checkpoint = str(fake_checkpoint(tmp_path / "ckpt", b"weights"))
+    cells = two_cells([True, False], [True, True])
+    learned = fake_suite(SuiteSettings(policy="instant_policy", policy_path=checkpoint, out=tmp_path, episodes=2,
+                                       demo_sets=1, policy_args=("--policy.inference_steps=8",)), cells)
+    replay = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1), cells)
+    assert eval_table([f"learned={learned}", f"replay={replay}", "--out", str(tmp_path / "t")]) == 0
+    assert "not recorded" not in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        eval_table([f"learned={learned}", f"replay={replay}", "--out", str(tmp_path / "t"), "--allow-difference",
+                    "seeds"])
+    assert "invalid choice: 'seeds'" in capsys.readouterr().err
+
+
+def test_manifests_written_before_the_conditions_are_read_and_what_they_lack_is_named(fake_suite, tmp_path, capsys):
+    """A manifest file without the conditions and reported seeds (as committed before they were recorded) is read
+    as columns: what it lacks is listed as not checked, what its settings hold (the policy options) still is."""
+    cells = two_cells([True, False], [True, True])
+    replay = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1), cells)
+    per_object = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, run_name="per_object",
+                                          policy_args=("--policy.registration_per_object=true",)), cells)
+    assert eval_table([f"demo_replay={replay}", f"per_object={per_object}", "--allow-difference", "policy_options",
+                       "--out", str(tmp_path / "new")]) == 0
+    manifests = json.loads((tmp_path / "new.manifest.json").read_text())
+    for manifest in manifests.values():
+        for cell in manifest["cells"]:
+            del cell["conditions"], cell["seeds_reported"]
+    old = tmp_path / "old.manifest.json"
+    old.write_text(json.dumps(manifests))
+    capsys.readouterr()
+    assert eval_table([str(old), "--out", str(tmp_path / "again")]) == 2
+    assert "differ in policy_options" in capsys.readouterr().err
+    assert eval_table([str(old), "--allow-difference", "policy_options", "--out", str(tmp_path / "again"), "--json",
+                       "--paired", "per_object=demo_replay"]) == 0
+    output = capsys.readouterr()
+    table = json.loads(output.out)
+    assert table["not_recorded"]["demo_replay"] == ["checkpoint", "hold_steps", "episode_length", "render_size",
+                                                    "seeds as run"]
+    assert "not recorded in per_object's manifest, so not checked: checkpoint" in output.err
+    assert table["overall"]["demo_replay"]["successes"] == 3 and table["paired"][0]["difference"] == 0.0
+    assert eval_table([f"per_object={old}", "--out", str(tmp_path / "one")]) == 0
+    assert eval_table([f"missing={old}", "--out", str(tmp_path / "one")]) == 2
+    assert "has no column 'missing'" in capsys.readouterr().err
+
+
+def test_the_committed_metaworld_manifest_rederives_its_paired_differences(tmp_path, capsys):
+    """From every episode of the committed MT10 test-split manifest: the shipped checkpoint − demo_replay resampling
+    tasks, and resampling cells (the interval the table gave before tasks were the default)."""
+    manifest = REPO / "docs" / "results_metaworld_mt10_test.manifest.json"
+    arguments = [str(manifest), "--env-type", "metaworld_pointcloud", "--paired", "instant_policy=demo_replay",
+                 "--json", "--out", str(tmp_path / "t")]
+    assert eval_table(arguments) == 0
+    table = json.loads(capsys.readouterr().out)
+    (by_task,) = table["paired"]
+    assert (by_task["difference"], by_task["ci95_low"], by_task["ci95_high"]) == pytest.approx(
+        (-47 / 300, -0.293, -0.027), abs=5e-4)
+    assert by_task["unit"] == "task" and by_task["clusters"] == 10 and by_task["cells"] == 30
+    assert table["overall"]["instant_policy"]["successes"] == 127
+    assert eval_table([*arguments, "--paired-unit", "cell"]) == 0
+    (by_cell,) = json.loads(capsys.readouterr().out)["paired"]
+    assert (by_cell["ci95_low"], by_cell["ci95_high"]) == pytest.approx((-0.2533, -0.06), abs=5e-4)
 
 
 def test_runs_without_cell_records_need_unchecked(fake_suite, tmp_path, capsys):
@@ -110,6 +307,30 @@ def test_runs_without_cell_records_need_unchecked(fake_suite, tmp_path, capsys):
 
 def cell(task: str, successes: list[bool], seed: int = 1000) -> CellOutcome:
     return CellOutcome(task, 0, tuple(range(seed, seed + len(successes))), 0, 2, "f", None, tuple(successes))
+
+
+def test_paired_difference_resamples_tasks_by_default():
+    """Task t1 favours A in all three of its cells (+2/2 each), t2 in none: resampling the two tasks draws t2 twice a
+    quarter of the time, so the interval is [0, 1]; resampling the six cells draws all three of t2's every 1/64 of the
+    time (< 2.5%), so it is [1/6, 5/6]. Identical columns give a zero-width interval at 0; a single task, none."""
+    a = {(task, s): CellOutcome(task, s, (1000 + 2 * s, 1001 + 2 * s), 0, 2, "f", None, (task == "t1",) * 2)
+         for task in ("t1", "t2") for s in range(3)}
+    b = {key: dataclasses.replace(outcome, successes=(False, False)) for key, outcome in a.items()}
+    by_task = paired_difference("a", a, "b", b)
+    assert by_task.difference == 0.5 and (by_task.low, by_task.high) == (0.0, 1.0) and by_task.clusters == 2
+    assert by_task.verdict == "no difference shown" and by_task.unit == "task" and by_task.cells == 6
+    by_cell = paired_difference("a", a, "b", b, unit="cell")
+    assert (by_cell.low, by_cell.high) == pytest.approx((1 / 6, 5 / 6)) and by_cell.verdict == "a beats b"
+    assert paired_difference("a", a, "b", b, seed=3) == paired_difference("a", a, "b", b, seed=3)
+    same = paired_difference("a", a, "a'", a)
+    assert (same.difference, same.low, same.high) == (0.0, 0.0, 0.0)
+    one_task = {key: outcome for key, outcome in a.items() if key[0] == "t1"}
+    single = paired_difference("a", one_task, "b", {key: b[key] for key in one_task})
+    assert single.difference == 1.0 and np.isnan(single.low) and single.verdict == "no difference shown"
+    assert single.as_json()["ci95_low"] is None and paired_difference(
+        "a", one_task, "b", {key: b[key] for key in one_task}, unit="cell").low == 1.0
+    with pytest.raises(ValueError, match="unit must be one of"):
+        paired_difference("a", a, "b", b, unit="episode")
 
 
 def test_paired_difference_on_known_cases():

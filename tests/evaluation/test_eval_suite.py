@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import av
@@ -21,7 +22,7 @@ from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings
 def test_lerobot_eval_command_names_task_policy_and_demos(tmp_path):
     settings = SuiteSettings(out=tmp_path)
     command = suite.lerobot_eval_command(settings, "open_drawer", tmp_path / "demos", 1000, tmp_path / "run")
-    assert Path(command[0]).name == "lerobot-eval"
+    assert command[:3] == [sys.executable, "-m", suite.LEROBOT_EVAL]  # lerobot-eval, keeping each episode's seed
     assert "--env.task=open_drawer" in command and "--policy.type=demo_replay" in command
     assert f"--policy.demo_root={tmp_path / 'demos'}" in command and "--policy.num_demos=2" in command
     assert "--seed=1000" in command and "--eval.n_episodes=10" in command
@@ -41,9 +42,9 @@ def test_demonstration_sets_have_disjoint_seeds_and_the_same_scenes_for_every_po
     assert [settings.eval_seed_of(s) for s in range(3)] == [1000, 1010, 1020]
     other = SuiteSettings(policy="instant_policy", policy_path="ckpt", out=tmp_path, episodes=10, demo_sets=3)
     assert [other.eval_seed_of(s) for s in range(3)] == [settings.eval_seed_of(s) for s in range(3)]
-    tasks = ["push_button", "pick_and_lift", "open_drawer"]
-    assert suite.swap_sources(tasks, task_group) == {"push_button": "open_drawer", "pick_and_lift": "open_drawer",
-                                                     "open_drawer": "push_button"}
+    tasks = ["push_button", "pick_and_lift", "open_drawer", "close_drawer"]
+    assert suite.swap_sources(tasks, task_group) == {"push_button": "open_drawer", "pick_and_lift": "close_drawer",
+                                                     "open_drawer": "push_button", "close_drawer": "pick_and_lift"}
     own = suite.demo_root(tmp_path, "push_button", 2, 100)
     swapped = suite.demo_root(tmp_path, "push_button", 2, 100, source="pick_and_lift")
     assert own != swapped and swapped.name.endswith("-from-pick_and_lift")

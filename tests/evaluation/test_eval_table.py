@@ -1,15 +1,25 @@
 """``lerobot-ip-eval-table``: the success table over lerobot-eval output directories, per task, per task group and
-overall, with Wilson 95% intervals (these runs have no suite manifests: joined with ``--unchecked``; the manifest
+overall, each rate with its cluster bootstrap interval (over tasks; a task's row over its cells) and its per-episode
+Wilson interval, both on known cases (these runs have no suite manifests: joined with ``--unchecked``; the manifest
 checks and paired differences are tested in ``test_eval_manifest.py``)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 
+import numpy as np
 import pytest
 
 from lerobot_instant_policy.cli.eval_table import main
-from lerobot_instant_policy.evaluation.success_table import wilson_interval
+from lerobot_instant_policy.evaluation.success_table import (
+    BOOTSTRAP_RESAMPLES,
+    BOOTSTRAP_SEED,
+    SuccessCount,
+    cluster_interval,
+    pool,
+    wilson_interval,
+)
 
 
 def write_eval_info(run_dir, task_group: str, successes: list[bool]) -> None:
@@ -54,8 +64,12 @@ def test_table_groups_policies_and_tasks(runs, tmp_path, capsys):
     low, high = wilson_interval(3, 4)
     assert rows[("pick_and_lift", "instant_policy")] == {
         "task": "pick_and_lift", "policy": "instant_policy", "episodes": 4, "successes": 3, "success_rate": 0.75,
+        "cluster_ci95_low": 0.5, "cluster_ci95_high": 1.0, "cluster_unit": "cell", "clusters": 2,
         "ci95_low": low, "ci95_high": high,
-    }
+    }  # its two runs (2/2 and 1/2) resampled: 1/2 and 2/2 drawn each over a quarter of the time
+    assert rows[("pick_and_lift", "demo_replay")]["cluster_ci95_low"] is None  # one run: no cluster interval
+    assert printed["overall"]["demo_replay"]["cluster_unit"] == "task"
+    assert set(printed["intervals"]) == {"cluster_ci95", "ci95"}
     assert printed["mean_success_rate"] == pytest.approx({"demo_replay": 0.5, "instant_policy": 0.75})
     assert printed["overall"]["demo_replay"]["episodes"] == 8 and printed["overall"]["demo_replay"]["successes"] == 4
     groups = {(group["group"], group["policy"]): group for group in printed["groups"]}
@@ -73,11 +87,12 @@ def test_text_table_groups_tasks_and_gives_intervals(runs, tmp_path, capsys):
     assert header.split() == ["task", "demo_replay"]
     assert set(rule) <= {"-", " "}
     assert lines[:5] == [line for line in lines[:5] if line.strip()]
-    assert lines[0].split() == ["[one", "object,", "one", "contact", "or", "grasp]", "3/4", "75%", "[30-95]"]
-    assert lines[1].split() == ["pick_and_lift", "3/4", "75%", "[30-95]"]
-    assert lines[2].split() == ["[articulated]", "1/4", "25%", "[5-70]"]
-    assert lines[3].split() == ["open_drawer", "1/4", "25%", "[5-70]"]
-    assert lines[4].split() == ["overall", "(every", "episode)", "4/8", "50%", "[22-78]"]
+    assert lines[0].split() == ["[one", "object,", "one", "contact", "or", "grasp]", "3/4", "75%", "[-]", "(30-95)"]
+    assert lines[1].split() == ["pick_and_lift", "3/4", "75%", "[-]", "(30-95)"]
+    assert lines[2].split() == ["[articulated]", "1/4", "25%", "[-]", "(5-70)"]
+    assert lines[3].split() == ["open_drawer", "1/4", "25%", "[-]", "(5-70)"]
+    assert lines[4].split() == ["overall", "(every", "episode)", "4/8", "50%", "[25-75]", "(22-78)"]
+    assert "cluster bootstrap over tasks" in lines[6] and "Wilson interval per episode" in lines[6]
 
 
 def test_wilson_interval_matches_the_closed_form_and_stays_inside_zero_one():
@@ -89,6 +104,36 @@ def test_wilson_interval_matches_the_closed_form_and_stays_inside_zero_one():
         expected = ((centre - half) / (1 + z * z / n), (centre + half) / (1 + z * z / n))
         assert wilson_interval(successes, episodes) == pytest.approx(expected, abs=1e-6)
     assert wilson_interval(0, 10)[0] == pytest.approx(0.0, abs=1e-12) and wilson_interval(10, 10)[1] == pytest.approx(1.0)
+
+
+def test_cluster_interval_on_a_hand_computable_case():
+    """Two clusters, 1/2 and 0/2: a resample draws the first twice (rate 1/2, a quarter of the time), each once
+    (1/4, half the time) or the second twice (0, a quarter): its 2.5th and 97.5th percentiles are 0 and 1/2. Fewer
+    than two clusters give no interval; the same counts give the same interval."""
+    assert cluster_interval([1, 0], [2, 2]) == (0.0, 0.5)
+    assert cluster_interval([1, 0], [2, 2]) == cluster_interval([1, 0], [2, 2], seed=BOOTSTRAP_SEED)
+    assert all(np.isnan(cluster_interval([3], [4]))) and all(np.isnan(cluster_interval([], [])))
+    assert cluster_interval([2, 2, 2], [4, 4, 4]) == (0.5, 0.5)  # every task alike: zero width
+
+
+def test_task_interval_resamples_tasks_as_a_direct_numpy_bootstrap_does():
+    """A fixed table of 3 tasks × 2 cells: the overall row's interval is the percentile bootstrap over the tasks'
+    pooled counts, computed here directly (same generator, one resample per row of draws), not over the 6 cells;
+    and close to the exact bootstrap distribution (all 27 equally likely resamples of 3 tasks)."""
+    cells = {"push_button": ((2, 10), (3, 10)), "open_drawer": ((9, 10), (10, 10)), "slide_block": ((0, 10), (6, 10))}
+    counts = [SuccessCount(task, "p", 20, sum(s for s, _ in task_cells),
+                           tuple((task, s, n) for s, n in task_cells)) for task, task_cells in cells.items()]
+    (overall,) = pool(counts, lambda task: "overall")
+    assert overall.cluster_unit == "task" and overall.cluster_count == 3 and overall.success_rate == 0.5
+    per_task = np.array([[sum(s for s, _ in task_cells), sum(n for _, n in task_cells)] for task_cells in cells.values()])
+    draws = np.random.default_rng(BOOTSTRAP_SEED).integers(0, 3, size=(BOOTSTRAP_RESAMPLES, 3))
+    rates = np.array([per_task[row, 0].sum() / per_task[row, 1].sum() for row in draws])
+    assert overall.cluster == tuple(np.percentile(rates, [2.5, 97.5]))
+    exact = sorted(per_task[list(row), 0].sum() / 60 for row in itertools.product(range(3), repeat=3))
+    assert overall.cluster == (exact[0], exact[-1])  # 1/27 of the mass at each end: beyond 2.5%
+    by_cells = cluster_interval([s for task_cells in cells.values() for s, _ in task_cells], [10] * 6)
+    assert by_cells[1] - by_cells[0] < overall.cluster[1] - overall.cluster[0]
+    assert counts[0].cluster_unit == "cell" and counts[0].cluster == (0.2, 0.3)
 
 
 def test_demonstration_sets_of_one_task_pool_under_the_task_name(tmp_path, capsys):

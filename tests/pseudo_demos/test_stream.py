@@ -114,7 +114,7 @@ def test_context_clouds_match_pybullets_at_the_same_poses(reference):
 
     Against the dataset path's renderer (``RenderConfig()``, crops of at most 80 px), mean over the task's 20
     clouds: 2.37 mm stream → pybullet and 2.18 mm pybullet → stream (asserted ≤ 3 mm each way). Over tasks 0–7
-    of seed 24 and 0–11 of ``configs/generate/rung4_full_bounded_train.json`` these figures span 1.6–3.2 and
+    of seed 24 and 0–11 of ``workbench/configs/generate/rung4_full_bounded_train.json`` these figures span 1.6–3.2 and
     1.7–3.9 mm: pybullet's own pixels lie ≈ 5 mm apart on the larger objects. Against a dense pybullet reference
     (crops of up to 320 px) the stream's points lie 1.15 mm from pybullet's (1.1–1.4 mm on those 20 tasks; asserted
     ≤ 2 mm), and the reference's distance to the stream's points, 1.77 mm, is no more than to the dataset's own
@@ -217,12 +217,13 @@ def test_tasks_that_cannot_give_a_sample_are_skipped_and_counted():
 
 
 def test_a_generate_config_file_gives_its_distributions():
-    config = StreamConfig.from_generate_config("configs/generate/rung4_full_bounded_train.json", num_demos=3,
+    config = StreamConfig.from_generate_config("configs/generate/stream_bounded.json", num_demos=3,
                                                samples_per_task=4)
-    assert config.generation.seed == 24 and config.generation.tasks_per_object_group == 4
+    assert config.generation.seed == 1000 and config.generation.tasks_per_object_group == 1
     assert config.generation.waypoint_max_roll_deg == 30.0 and config.num_demos == 3
+    assert config.generation.demo.object_max_yaw_deg == 45.0 and config.generation.demo.start_max_roll_deg == 15.0
     description = PseudoTaskStream(config, rank=1, world_size=2).describe()
-    for part in ("'full'", "seed 24", "rank 1 of 2", "N=3", "L=10", "4 live frame(s)", "P=2048", "3 cameras"):
+    for part in ("'full'", "seed 1000", "rank 1 of 2", "N=3", "L=10", "4 live frame(s)", "P=2048", "3 cameras"):
         assert part in description, part
 
 

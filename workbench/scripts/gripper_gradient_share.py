@@ -3,7 +3,7 @@ small network: translation and rotation flows, the old gripper term (squared err
 clean command ±1, weight 1) and the new one (``gripper_loss_weight`` × cross-entropy of the head's logit), all from
 the same forward pass (same frames, context, timesteps and noise). Prints JSON: medians over batches.
 
-Usage: python docs/scripts/gripper_gradient_share.py DATASET_ROOT REPO_ID [BATCHES]
+Usage: python workbench/scripts/gripper_gradient_share.py DATASET_ROOT REPO_ID [BATCHES]
 """
 
 import json

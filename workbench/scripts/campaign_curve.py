@@ -2,7 +2,7 @@
 still and its context gain, on moved-object and on one-layout pseudo-tasks, from ``lerobot-ip-action-error --json``
 outputs named ``<dir>/s<step>_{moved,shared}.json`` (step 0: the checkpoint the campaign started from).
 
-    python docs/scripts/campaign_curve.py outputs/eval --samples-per-step 8 --out docs/campaign_curve
+    python workbench/scripts/campaign_curve.py outputs/eval --samples-per-step 8 --out docs/campaign_curve
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""``lerobot-ip-bench lerobot-train``: the real ``lerobot-train`` on a dataset the test writes, its log lines read."""
+"""``python -m workbench.cli.bench lerobot-train``: the real ``lerobot-train`` on a dataset the test writes, its log
+lines read."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import json
 import pytest
 from synthetic_demos import object_pose, write_demo_dataset
 
-from lerobot_instant_policy.benchmarks.lerobot_train import LogLine, bench_lerobot_train, parse_log_line, summarize
-from lerobot_instant_policy.cli.bench import main
+from workbench.benchmarks.lerobot_train import LogLine, bench_lerobot_train, parse_log_line, summarize
+from workbench.cli.bench import main
 
 # A line as lerobot-train 0.6.1 writes it: tqdm's bar, a carriage return, then LeRobot's log record.
 LOGGED = ("Training:  50%|#####     | 249/500 [00:49<00:25,  9.91step/s]\rINFO 2026-11-25 12:08:17 ot_train.py:641 "

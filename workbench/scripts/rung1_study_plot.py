@@ -3,7 +3,7 @@ the context gain, against training steps (one run's checkpoints) and against the
 
 Each input is a ``lerobot-ip-action-error --json`` output; the figure and the figures' data go to OUT.png / OUT.json.
 
-Usage: python docs/scripts/rung1_study_plot.py OUT steps STEP=FILE ... tasks COUNT=FILE ...
+Usage: python workbench/scripts/rung1_study_plot.py OUT steps STEP=FILE ... tasks COUNT=FILE ...
 
 ``point`` reads one such output; ``task_count_plot.py`` uses it too.
 """

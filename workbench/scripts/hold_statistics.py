@@ -2,7 +2,7 @@
 contain a step without translation, the share of first actions that are exact holds (action position = state
 position), and the share of frames whose observed gripper state differs from the commanded one (gripper faults).
 
-Usage: python docs/scripts/hold_statistics.py DATASET_ROOT REPO_ID   (prints JSON)
+Usage: python workbench/scripts/hold_statistics.py DATASET_ROOT REPO_ID   (prints JSON)
 """
 
 import json

@@ -11,7 +11,7 @@ reporting per bin the own translation error, holding still, own / hold and the c
 handing over the next task's demonstrations). A gain that falls with the turn while it stays high for small turns
 says what the network has not learned: registering views turned far from each other.
 
-    python docs/scripts/error_by_turn.py CHECKPOINT_DIR HELD_OUT_ROOT [--tasks 24]
+    python workbench/scripts/error_by_turn.py CHECKPOINT_DIR HELD_OUT_ROOT [--tasks 24]
 """
 
 from __future__ import annotations

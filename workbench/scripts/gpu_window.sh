@@ -2,7 +2,7 @@
 # One device window for the GPU campaign (docs/training.md, "Run on one H100"). Here, after `make install`:
 #   bash ../shared/gpu/prepare.sh
 #   rm -f .device/wheels/{metaworld,mujoco,pyopengl,glfw}-*.whl           # not needed to train; over 64 MiB with them
-#   mkdir -p .device/av && mv .device/wheels/av-*.whl .device/av/ && cp docs/scripts/gpu_window.sh .device/project/
+#   mkdir -p .device/av && mv .device/wheels/av-*.whl .device/av/ && cp workbench/scripts/gpu_window.sh .device/project/
 # then three device calls, each within 30 s of the last:
 #   carry .device/wheels:  bash .device/wheels/on-device.sh wheels
 #   carry .device/av:      python3 -m pip install -q --no-index --no-deps --target /tmp/site-av .device/av/*.whl && cp -r /tmp/site-av/. /tmp/site/

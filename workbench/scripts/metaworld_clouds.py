@@ -2,7 +2,7 @@
 frame beside the segmented cloud (``--env.type=metaworld_pointcloud``: task objects and the goal marker, fused from
 the MuJoCo depth + segmentation cameras) and the EE pose, at ``reset(seed)``.
 
-    MUJOCO_GL=osmesa python docs/scripts/metaworld_clouds.py --tasks pick-place-v3,drawer-open-v3,window-open-v3 \
+    MUJOCO_GL=osmesa python workbench/scripts/metaworld_clouds.py --tasks pick-place-v3,drawer-open-v3,window-open-v3 \
         --out docs/metaworld_clouds.png
 """
 

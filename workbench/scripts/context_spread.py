@@ -9,7 +9,7 @@ episode of each of the first 6 tasks, with the task's first two demonstrations a
 - ``swap / spread``: the mean change of φ's output when the demonstrations are swapped, over φ's spread across
   frames: about 0 for a network that ignores its demonstrations.
 
-    python docs/scripts/context_spread.py CHECKPOINT_DIR HELD_OUT_ROOT [CHECKPOINT_DIR HELD_OUT_ROOT ...]
+    python workbench/scripts/context_spread.py CHECKPOINT_DIR HELD_OUT_ROOT [CHECKPOINT_DIR HELD_OUT_ROOT ...]
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ task's own demonstrations; one that ignores the context scores the same with all
 
 Same held-out frames, noise and K, N = 2, L = 10 as ``lerobot-ip-action-error`` (24 tasks × 4 frames by default).
 
-    python docs/scripts/self_context.py CHECKPOINT_DIR HELD_OUT_ROOT [--tasks 24]
+    python workbench/scripts/self_context.py CHECKPOINT_DIR HELD_OUT_ROOT [--tasks 24]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import torch
 
 from lerobot_instant_policy.data.demonstrations import open_demo_dataset, read_demonstration
 from lerobot_instant_policy.evaluation.action_error import (
-    evaluate_settings,
+    evaluate_setting,
     hold_reference,
     load_held_out_tasks,
     swapped_context,
@@ -46,10 +46,10 @@ def main() -> None:
         dataclasses.replace(held, demos=[read_demonstration(dataset, held.live_episode, held.task), held.demos[0]])
         for held in tasks
     ]
-    setting = [(4, 2, 10)]
+    setting = (4, 2, 10)
     result = {"checkpoint": args.checkpoint, "hold": hold_reference(tasks)}
     for name, variant in (("own", tasks), ("self", own_scene), ("swap", swapped_context(tasks))):
-        result[name] = evaluate_settings(policy, variant, setting)[0]
+        result[name] = evaluate_setting(policy, variant, setting)
     for name in ("self", "swap"):
         result[f"{name}_over_own_translation"] = round(
             result[name]["translation_mm"] / result["own"]["translation_mm"], 3)

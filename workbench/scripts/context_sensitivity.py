@@ -14,7 +14,7 @@ their motion, so the script also reports
 
 which is about 1 when the state follows the demonstrations' scenes only, and above 1 when it tells tasks apart.
 
-    python docs/scripts/context_sensitivity.py CHECKPOINT_DIR HELD_OUT_ROOT [--tasks 24]
+    python workbench/scripts/context_sensitivity.py CHECKPOINT_DIR HELD_OUT_ROOT [--tasks 24]
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ same pose in the same layout, next to holding still.
     ideal swap / hold ≈ 1 means a gain of 2 needs an own error of about 0.5× hold-still (the issue's other figure);
     ≪ 1 would make a gain of 2 unreachable for any network short of a perfect one.
 
-    python docs/scripts/swap_ceiling.py [--groups 12] [--seed 5]
+    python workbench/scripts/swap_ceiling.py [--groups 12] [--seed 5]
 """
 
 from __future__ import annotations

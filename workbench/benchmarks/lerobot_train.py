@@ -1,4 +1,5 @@
-"""Speed of ``lerobot-train`` itself on a dataset: the data loader, LeRobot's loop and the policy's update together.
+"""Speed of ``lerobot-train`` itself on a dataset: the data loader, LeRobot's loop and the policy's update together
+(``python -m workbench.cli.bench lerobot-train``).
 
 ``lerobot-ip-bench train-step`` times one update in isolation. This runs the real command, ``python -m
 lerobot.scripts.lerobot_train`` with the ``make ladder`` model, for ``steps`` steps per variant, reads every log line

@@ -29,7 +29,7 @@ tasks, which shows what the features hold about tasks the network has seen (what
 ``--mlp`` a 2-layer MLP probe is fitted too (the goal is a composition of two poses, which a linear read-out
 cannot form), stopped early on a fifth of the training tasks.
 
-    python docs/scripts/goal_probe.py CHECKPOINT_DIR TRAIN_ROOT HELD_OUT_ROOT [--train-tasks 120] [--frames 15] [--mlp]
+    python workbench/scripts/goal_probe.py CHECKPOINT_DIR TRAIN_ROOT HELD_OUT_ROOT [--train-tasks 120] [--frames 15] [--mlp]
 """
 
 from __future__ import annotations

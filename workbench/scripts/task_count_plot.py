@@ -4,7 +4,7 @@ the context gain against the number of distinct training tasks, on held-out task
 Each run gives two ``lerobot-ip-action-error --json`` outputs: on the held-out set and on the training set's first
 tasks (which every run trained on). The figure and its data go to OUT.png / OUT.json.
 
-Usage: python docs/scripts/task_count_plot.py OUT COUNT=HELD_OUT.json:TRAINING.json ...
+Usage: python workbench/scripts/task_count_plot.py OUT COUNT=HELD_OUT.json:TRAINING.json ...
 """
 
 import json
