@@ -253,6 +253,8 @@ def _add_stream(commands) -> None:
                                                                   "the stream's)")
         command.add_argument("--zbuffer", type=int, nargs=2, metavar=("W", "H"),
                              help="splatting z-buffer size (default: the stream's 480 360)")
+        command.add_argument("--surface-samples", type=int,
+                             help="surface samples per object that splatting draws from (default: the stream's 8192)")
         command.add_argument("--threads", type=int, help="torch threads of the update (default: torch's)")
         command.add_argument("--device", help="the update's device (default: cuda when there is one, else cpu)")
         if name == "pool":  # default: PoolConfig's
@@ -266,7 +268,8 @@ def _add_stream(commands) -> None:
 
 
 def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
-    sizes = [args.batch_size, args.samples_per_task, args.tasks_per_render, args.steps, args.threads]
+    sizes = [args.batch_size, args.samples_per_task, args.tasks_per_render, args.steps, args.threads,
+             args.surface_samples]
     if min(size for size in sizes if size is not None) <= 0 or args.seconds < 0:
         parser.error("--batch-size, --samples-per-task, --tasks-per-render, --steps, --threads and --seconds must be "
                      "positive")
@@ -282,6 +285,8 @@ def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> di
         overrides["tasks_per_render"] = args.tasks_per_render
     if args.zbuffer:
         overrides["zbuffer_resolution"] = tuple(args.zbuffer)
+    if args.surface_samples:
+        overrides["surface_samples"] = args.surface_samples
     config = StreamConfig.from_generate_config(args.config, **overrides)
     run = dict(preset=args.preset, batch_size=args.batch_size, seconds=args.seconds, steps=args.steps,
                device=args.device)

@@ -110,13 +110,14 @@ def test_stream_and_pool_benchmarks_time_whole_runs_with_every_render_inside(cap
     config = tmp_path / "stream.json"
     config.write_text(json.dumps({"seed": 3, "object_pool": ["pb/cube", "pb/duck"]}))
     common = ["--config", str(config), "--batch-size", "2", "--steps", "2", "--samples-per-task", "2",
-              "--tasks-per-render", "1", "--zbuffer", "160", "120", "--device", "cpu", "--json"]
+              "--tasks-per-render", "1", "--zbuffer", "160", "120", "--surface-samples", "1024", "--device", "cpu",
+              "--json"]
     assert main(["stream", *common]) == 0
     stream = json.loads(capsys.readouterr().out)
     assert stream["source"] == "stream" and stream["steps"] == 2 and stream["hidden_dim"] == 128
     assert stream["samples_per_s"] == pytest.approx(4 / stream["wall_s"])
     assert stream["distinct_tasks"] == 2 and 0 < stream["update_share"] < 1  # 2 samples a task, 4 samples
-    assert stream["stream"]["zbuffer"] == "160x120"
+    assert stream["stream"]["zbuffer"] == "160x120" and stream["stream"]["surface_samples"] == 1024
     assert main(["pool", *common, "--min-tasks", "2"]) == 0
     pool = json.loads(capsys.readouterr().out)
     assert pool["source"] == "pool" and pool["pool"]["samples"] == 4 and pool["generators"] == 1
