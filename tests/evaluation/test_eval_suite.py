@@ -96,6 +96,26 @@ def test_malformed_policy_arg_is_refused(bad, capsys):
     assert "KEY=VALUE" in capsys.readouterr().err
 
 
+def test_both_suite_commands_take_the_shared_arguments_and_their_envs_own():
+    """``lerobot-ip-eval-suite`` and ``lerobot-ip-eval-metaworld`` parse the shared arguments alike
+    (``evaluation.suite_command``) into settings of their env; each refuses the other env's own arguments."""
+    from lerobot_instant_policy.cli import eval_metaworld
+    from lerobot_instant_policy.evaluation import suite_command
+
+    shared = ["--policy", "demo_replay", "--episodes", "4", "--split", "test", "--eval-seed", "70000", "--swap",
+              "--policy-arg", "inference_steps=8", "--env-arg", "render_size=64", "--run-name", "K8", "--resume"]
+    bullet = suite_command.suite_settings(eval_suite.build_parser().parse_args(shared), suite_command.BULLET_TABLETOP)
+    metaworld = suite_command.suite_settings(eval_metaworld.build_parser().parse_args(shared), suite_command.METAWORLD)
+    assert (bullet.env_type, metaworld.env_type) == ("bullet_tabletop", "metaworld_pointcloud")
+    assert (bullet.demo_sets, metaworld.demo_sets) == (3, 1)  # each env's default
+    assert dataclasses.replace(metaworld, env_type=bullet.env_type, demo_sets=3, out=bullet.out) == bullet
+    assert (bullet.demo_seed, bullet.eval_seed, bullet.split) == (50_000, 70_000, "custom")
+    with pytest.raises(SystemExit):
+        eval_metaworld.build_parser().parse_args(["--obs-type", "rgbd"])
+    with pytest.raises(SystemExit):
+        eval_suite.build_parser().parse_args(["--episode-length", "100"])
+
+
 def test_run_name_must_be_a_plain_folder_name(capsys):
     with pytest.raises(SystemExit):
         eval_suite.main(["--run-name", "../escape", "--out", "unused"])

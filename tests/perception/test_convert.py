@@ -135,8 +135,8 @@ def test_depth_stored_in_millimetres_but_labelled_metres_raises(tmp_path):
 
 
 def test_eval_suite_env_args_and_rgbd_demo_roots(tmp_path):
-    from lerobot_instant_policy.cli.eval_suite import parse_env_arg
     from lerobot_instant_policy.evaluation.suite import demo_root
+    from lerobot_instant_policy.evaluation.suite_command import parse_env_arg
 
     assert parse_env_arg("depth_noise_std=0.002") == "--env.depth_noise_std=0.002"
     assert demo_root(tmp_path, TASK, 2, 0, "rgbd").name == f"{TASK}-n2-s0-rgbd"
