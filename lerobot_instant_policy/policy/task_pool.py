@@ -62,7 +62,7 @@ from ..contract import (
 )
 from ..model.geometry_encoder import GeometryEncoder, GeometryEncoderConfig
 from ..model.occupancy import load_encoder_weights
-from ..pseudo_demos.stream import PseudoTaskStream, RenderedTask, StreamConfig
+from ..pseudo_demos.stream import PseudoTaskStream, RenderedTask, StreamConfig, check_place
 
 CHECKPOINT_ENCODER_PREFIX = "network.geometry_encoder."
 _POLL_S = 0.5  # how often a waiting generator checks that its pool still wants tasks
@@ -266,12 +266,7 @@ class TaskPool(torch.utils.data.IterableDataset):
                  start_task: int = 0):
         super().__init__()
         config.validate()
-        if not isinstance(world_size, int) or world_size < 1:
-            raise ValueError(f"world_size must be a positive integer, got {world_size!r}")
-        if not isinstance(rank, int) or not 0 <= rank < world_size:
-            raise ValueError(f"rank must be an integer in [0, world_size = {world_size}), got {rank!r}")
-        if not isinstance(start_task, int) or start_task < 0:
-            raise ValueError(f"start_task must be a non-negative integer, got {start_task!r}")
+        check_place(rank, world_size, start_task)
         self.config, self.encoder = config, encoder
         self.rank, self.world_size, self.start_task = rank, world_size, start_task
         self._tasks: deque[EncodedTask] = deque()

@@ -152,6 +152,16 @@ class _TaskFrames:
     live: np.ndarray
 
 
+def check_place(rank: int, world_size: int, start_task: int) -> None:
+    """``ValueError`` naming a process place (``rank`` of ``world_size``) or a first task index that cannot be used."""
+    if not isinstance(world_size, int) or world_size < 1:
+        raise ValueError(f"world_size must be a positive integer, got {world_size!r}")
+    if not isinstance(rank, int) or not 0 <= rank < world_size:
+        raise ValueError(f"rank must be an integer in [0, world_size = {world_size}), got {rank!r}")
+    if not isinstance(start_task, int) or start_task < 0:
+        raise ValueError(f"start_task must be a non-negative integer, got {start_task!r}")
+
+
 @dataclass
 class RenderedTask:
     """One planned task's rendered frames: ``clouds (N·L + S, P, 3)`` world frame, on the stream's device, its ``N · L``
@@ -203,12 +213,7 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
     ):
         super().__init__()
         config.validate()
-        if not isinstance(world_size, int) or world_size < 1:
-            raise ValueError(f"world_size must be a positive integer, got {world_size!r}")
-        if not isinstance(rank, int) or not 0 <= rank < world_size:
-            raise ValueError(f"rank must be an integer in [0, world_size = {world_size}), got {rank!r}")
-        if not isinstance(start_task, int) or start_task < 0:
-            raise ValueError(f"start_task must be a non-negative integer, got {start_task!r}")
+        check_place(rank, world_size, start_task)
         self.config = config
         self.device = torch.device(device)
         self.rank, self.world_size, self.start_task = rank, world_size, start_task
@@ -339,4 +344,4 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
                 for index, cloud in enumerate(task.live_clouds)]
 
 
-__all__ = ["PseudoTaskStream", "RenderedTask", "StreamConfig"]
+__all__ = ["PseudoTaskStream", "RenderedTask", "StreamConfig", "check_place"]
