@@ -26,27 +26,37 @@ def _one_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected one integer, got {text!r}{hint}") from error
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog=PROG, description="Offline action error of an instant_policy checkpoint on held-out pseudo-tasks at one "
-        "setting of K (denoising steps), N (demonstrations) and L (waypoints), against holding still and another "
-        "task's demonstrations; prints JSON.")
+def add_checkpoint_and_frames(parser: argparse.ArgumentParser) -> None:
+    """The checkpoint, the held-out dataset and the frames read of it (the probe's and the workbench sweep's)."""
     parser.add_argument("--policy-path", required=True, help="a pretrained_model directory of instant_policy")
     parser.add_argument("--root", required=True, help="held-out pseudo-demonstration dataset (lerobot-ip-generate)")
     parser.add_argument("--repo-id", help="its repo id (default: local/<root name>)")
     parser.add_argument("--tasks", type=int, default=12, help="pseudo-tasks evaluated, the first ones (default 12)")
     parser.add_argument("--frames-per-task", type=int, default=4, help="frames of each live episode (default 4)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the frames and of the DDIM noise")
-    parser.add_argument("--K", type=_one_int, default=DEFAULT_K, help=f"denoising steps (default {DEFAULT_K})")
-    parser.add_argument("--N", type=_one_int, default=DEFAULT_N, help=f"context demonstrations (default {DEFAULT_N})")
-    parser.add_argument("--L", type=_one_int, default=DEFAULT_L,
-                        help=f"waypoints per demonstration (default {DEFAULT_L})")
+
+
+def add_prediction_and_output(parser: argparse.ArgumentParser) -> None:
+    """How predictions are made and reported (the probe's and the workbench sweep's)."""
     parser.add_argument("--samples-per-prediction", type=int,
                         help="predict the mean of this many samples (the policy's samples_per_prediction; default: "
                              "the checkpoint's)")
     parser.add_argument("--no-untrained", action="store_true", help="skip the freshly initialised reference")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Offline action error of an instant_policy checkpoint on held-out pseudo-tasks at one "
+        "setting of K (denoising steps), N (demonstrations) and L (waypoints), against holding still and another "
+        "task's demonstrations; prints JSON.")
+    add_checkpoint_and_frames(parser)
+    parser.add_argument("--K", type=_one_int, default=DEFAULT_K, help=f"denoising steps (default {DEFAULT_K})")
+    parser.add_argument("--N", type=_one_int, default=DEFAULT_N, help=f"context demonstrations (default {DEFAULT_N})")
+    parser.add_argument("--L", type=_one_int, default=DEFAULT_L,
+                        help=f"waypoints per demonstration (default {DEFAULT_L})")
+    add_prediction_and_output(parser)
     return parser
 
 

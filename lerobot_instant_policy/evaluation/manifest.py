@@ -78,17 +78,22 @@ class CellOutcome:
         return self.task, self.demo_set
 
 
+def _files_digest(root: Path, files: list[Path]) -> str:
+    """SHA-256 (hex) of ``files`` under ``root``, in order: each one's relative path, a NUL, then its bytes."""
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def demo_fingerprint(demos: Path) -> str:
     """SHA-256 (hex) of a demonstration dataset's frames: every file under ``demos/data`` by relative path and
     bytes. ``FileNotFoundError`` when there are none."""
     files = sorted(path for path in (demos / DEMO_DATA).rglob("*") if path.is_file())
     if not files:
         raise FileNotFoundError(f"{demos} has no {DEMO_DATA}/ files: not a recorded demonstration dataset")
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(path.relative_to(demos).as_posix().encode() + b"\0")
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
+    return _files_digest(demos, files)
 
 
 def checkpoint_fingerprint(checkpoint: Path) -> str:
@@ -98,11 +103,7 @@ def checkpoint_fingerprint(checkpoint: Path) -> str:
     files = sorted(path for path in checkpoint.rglob("*") if path.is_file() and path.name not in CHECKPOINT_SKIPPED)
     if not files:
         raise FileNotFoundError(f"{checkpoint} holds no checkpoint files")
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(path.relative_to(checkpoint).as_posix().encode() + b"\0")
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
+    return _files_digest(checkpoint, files)
 
 
 def cell_identity(task: str, demo_set: int, eval_seed: int, episodes: int, demo_seed: int, num_demos: int,

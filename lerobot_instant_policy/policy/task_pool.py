@@ -125,10 +125,6 @@ class EncodedTask:
     def num_live(self) -> int:
         return len(self.state)
 
-    @property
-    def nbytes(self) -> int:
-        return sum(value.nbytes for value in vars(self).values() if isinstance(value, np.ndarray))
-
     def sample(self, frame: int) -> dict[str, torch.Tensor]:
         """The training sample of live frame ``frame`` (module docstring)."""
         return {

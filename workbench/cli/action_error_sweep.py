@@ -10,6 +10,7 @@ import json
 import math
 import sys
 
+from lerobot_instant_policy.cli.action_error import add_checkpoint_and_frames, add_prediction_and_output
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
 from lerobot_instant_policy.evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N, ActionErrorError
 from lerobot_instant_policy.evaluation.checkpoints import EvaluationError
@@ -37,12 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG, description="Offline action error of an instant_policy checkpoint on held-out pseudo-tasks, "
         "varying K (denoising steps), N (demonstrations) and L (waypoints) one at a time; prints JSON.")
-    parser.add_argument("--policy-path", required=True, help="a pretrained_model directory of instant_policy")
-    parser.add_argument("--root", required=True, help="held-out pseudo-demonstration dataset (lerobot-ip-generate)")
-    parser.add_argument("--repo-id", help="its repo id (default: local/<root name>)")
-    parser.add_argument("--tasks", type=int, default=12, help="pseudo-tasks evaluated, the first ones (default 12)")
-    parser.add_argument("--frames-per-task", type=int, default=4, help="frames of each live episode (default 4)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the frames and of the DDIM noise")
+    add_checkpoint_and_frames(parser)
     parser.add_argument("--K", type=_int_list, default=list(DEFAULT_KS),
                         help=f"denoising steps (default {_listed(DEFAULT_KS)})")
     parser.add_argument("--N", type=_int_list, default=list(DEFAULT_NS),
@@ -51,12 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"waypoints per demonstration (default {_listed(DEFAULT_LS)})")
     parser.add_argument("--default", type=_int_list, default=[DEFAULT_K, DEFAULT_N, DEFAULT_L],
                         help=f"the K,N,L held while another varies (default {DEFAULT_K},{DEFAULT_N},{DEFAULT_L})")
-    parser.add_argument("--samples-per-prediction", type=int,
-                        help="predict the mean of this many samples (the policy's samples_per_prediction; default: "
-                             "the checkpoint's)")
-    parser.add_argument("--no-untrained", action="store_true", help="skip the freshly initialised reference")
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    add_prediction_and_output(parser)
     return parser
 
 
