@@ -7,6 +7,8 @@ or JSON on stdout and as OUT.json, OUT.png and OUT.manifest.json (``evaluation.s
         --paired instant_policy=demo_replay
     lerobot-ip-eval-table docs/results_suite_test.manifest.json --allow-difference policy_options --out OUT
     lerobot-ip-eval-table instant_policy=RUN_DIR demo_replay=docs/results_suite_protocol.json --unchecked
+    lerobot-ip-eval-table docs/results_suite_test.manifest.json \
+        demo_replay=outputs/results/suite_test_slide_block/runs/demo_replay --allow-difference policy_options --out OUT
 
 Columns come from suite run directories or from the manifest file of an earlier table (``[COLUMN=]FILE.manifest
 .json``: every episode of each column, so its table can be derived again). They are joined only when their
@@ -18,6 +20,13 @@ does not record (one written before the field was) is listed as not checked. ``-
 rate minus B's over the same episodes, with a cluster bootstrap interval that resamples tasks (``--paired-unit
 cell``: task × demonstration-set cells). ``--unchecked`` joins columns whose manifests are not known (an earlier
 table's rows, runs from before cells recorded their seeds): no manifest, no paired difference.
+
+A ``COLUMN=DIR`` after a manifest file that holds COLUMN amends that column (``manifest.amend_column``): the run's
+cells (a task evaluated again) replace the column's cells of the same task × demonstration set, every other cell
+stays, and the counts, intervals and paired differences are those of the amended column. The run may hold no cell
+the column lacks, must have run each on the column's seeds, under its settings and conditions (but those named with
+``--allow-difference``); demonstrations recorded again are noted. OUT.manifest.json names the replaced cells and
+their run (``"replaced_cells"``). The manifest file comes first, then the runs that amend it.
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ from ..evaluation.manifest import (
     CONDITIONS,
     MANIFEST_SUFFIX,
     ManifestError,
+    amend_column,
     cells_of,
     check_joinable,
     column_manifest,
@@ -58,8 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("paths", nargs="+",
                         help="COLUMN=DIR: a suite run (OUT/runs/<name>) or lerobot-eval output dir; "
-                             f"[COLUMN=]FILE{MANIFEST_SUFFIX}: the columns of an earlier table's manifest; or "
-                             "[COLUMN=]TABLE.json: the rows of an earlier table (needs --unchecked)")
+                             f"[COLUMN=]FILE{MANIFEST_SUFFIX}: the columns of an earlier table's manifest (a "
+                             "COLUMN=DIR after a manifest that holds COLUMN replaces that column's cells of the run's "
+                             "tasks); or [COLUMN=]TABLE.json: the rows of an earlier table (needs --unchecked)")
     parser.add_argument("--policy", default=None, help="column name for paths without a COLUMN= prefix")
     parser.add_argument("--env-type", default=DEFAULT_ENV_TYPE, help="env type lerobot-eval ran (default: %(default)s)")
     parser.add_argument("--out", default="eval_table", help="writes OUT.json, OUT.png and OUT.manifest.json")
@@ -94,17 +105,29 @@ def column_paths(paths: list[str], default_policy: str | None) -> dict[str, Path
     return columns
 
 
-def read_columns(paths: list[str], default_policy: str | None, env_type: str, unchecked: bool):
-    """The pooled counts of every PATH argument and the manifests of its columns (none with ``unchecked``, but those
-    of manifest files, which are their columns' only record)."""
+def read_columns(paths: list[str], default_policy: str | None, env_type: str, unchecked: bool,
+                 allowed: tuple[str, ...]):
+    """The pooled counts of every PATH argument, the manifests of its columns (none with ``unchecked``, but those
+    of manifest files, which are their columns' only record) and the notes of the manifest columns that run
+    directories after them amend (``manifest.amend_column``, ``allowed``: the conditions they may differ in)."""
     file_manifests: dict[str, dict] = {}
     others = []
+    notes = []
     for argument in paths:
         label, path = path_argument(argument)
+        column = label or default_policy
         if is_manifest_file(path):
             if not path.is_file():
                 raise FileNotFoundError(f"{path} does not exist")
-            file_manifests.update(read_manifest_file(path, label or None))
+            columns = read_manifest_file(path, label or None)
+            before = sorted(set(columns) & set(column_paths(others, default_policy)))
+            if before:
+                raise ManifestError(f"{path} holds {', '.join(before)}, given before it as a run directory: put the "
+                                    f"manifest file first for a run to replace that column's cells")
+            file_manifests.update(columns)
+        elif column in file_manifests and not is_table(path):
+            file_manifests[column], column_notes = amend_column(column, file_manifests[column], path, allowed)
+            notes += column_notes
         else:
             others.append(argument)
     counts = [count for name, manifest in file_manifests.items() for count in manifest_counts(name, manifest)]
@@ -113,7 +136,7 @@ def read_columns(paths: list[str], default_policy: str | None, env_type: str, un
     manifests = dict(file_manifests)
     if not unchecked:
         manifests.update({column: column_manifest(path) for column, path in column_paths(others, default_policy).items()})
-    return results, manifests
+    return results, manifests, notes
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
         pairs = [tuple(pair.split("=", 1)) for pair in args.paired]
         if any(len(pair) != 2 or not all(pair) for pair in pairs):
             raise ValueError(f"--paired takes A=B with two column names, got {args.paired}")
-        results, manifests = read_columns(args.paths, args.policy, args.env_type, args.unchecked)
+        results, manifests, notes = read_columns(args.paths, args.policy, args.env_type, args.unchecked,
+                                                 tuple(args.allow_difference))
         if not args.unchecked:
             if len(manifests) < len({result.policy for result in results}):
                 raise ManifestError("an earlier table's rows have no manifest: join them with --unchecked")
@@ -149,8 +173,8 @@ def main(argv: list[str] | None = None) -> int:
     if manifests:
         written.append(out.with_suffix(".manifest.json"))
         written[-1].write_text(json.dumps(manifests, indent=2) + "\n")
-    notes = [f"not recorded in {column}'s manifest, so not checked: {', '.join(names)}"
-             for column, names in unknown.items()]
+    notes += [f"not recorded in {column}'s manifest, so not checked: {', '.join(names)}"
+              for column, names in unknown.items()]
     for note in notes:
         print(f"{parser.prog}: note: {note}", file=sys.stderr)
     print(json.dumps(table) if args.json else "\n".join([format_table(results), *(d.line() for d in differences)]))

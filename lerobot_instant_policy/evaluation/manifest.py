@@ -18,6 +18,13 @@ different sizes), and the same ``CONDITIONS`` unless a difference is named as al
 between columns that load one, the policy options between columns of the same policy): :func:`check_joinable` names
 the first difference. A manifest written before a field was recorded lacks it: that field is unknown for its
 cells, not checked, and :func:`check_joinable` says so.
+
+A column of a manifest file can be *amended* by a suite run that evaluated some of its cells again (a task whose
+success criterion changed): :func:`amend_column` puts the run's cells in place of the column's cells of the same
+task × demonstration set and keeps every other one, where the run holds no cell the column lacks, ran each cell on
+the column's evaluation seeds and from the same swap source, and was evaluated under the column's settings and
+``CONDITIONS`` (but a difference named as allowed). Demonstrations recorded again (another fingerprint) are allowed
+and noted. The amended manifest names each replaced cell and the run it came from (``"replaced_cells"``).
 """
 
 from __future__ import annotations
@@ -52,6 +59,9 @@ CONDITIONS = {
 SETTING_CONDITIONS = {"policy_args": "policy_options", "success": "success", "env_args": "env_args",
                       "obs_type": "obs_type", "episode_length": "episode_length",
                       "pointcloud_every": "pointcloud_every"}
+# The settings that hold a condition, by the name --allow-difference takes: an amending run (amend_column) may differ
+# from its column in those named.
+SETTING_ALLOWANCES = {**SETTING_CONDITIONS, "policy_path": "checkpoint"}
 CHECKPOINT_SKIPPED = ("README.md", "train_config.json")  # a checkpoint's model card and training record
 
 
@@ -288,6 +298,52 @@ def read_manifest_file(path: Path, column: str | None = None) -> dict[str, dict]
     if column not in manifests:
         raise ManifestError(f"{path} has no column {column!r} (it holds {', '.join(manifests)})")
     return {column: manifests[column]}
+
+
+def amend_column(column: str, manifest: dict, run_dir: Path, allowed: tuple[str, ...] = ()) -> tuple[dict, list[str]]:
+    """Column ``column``'s ``manifest`` with the cells of the suite run in ``run_dir`` (:func:`column_manifest`) in
+    place of its own of the same (task, demonstration set), and the notes to print (what was replaced, demonstrations
+    recorded again); its ``"replaced_cells"`` lists every cell replaced so far, each ``{"task", "demo_set", "from":
+    run dir}``. ``ManifestError`` when the run holds a cell the column lacks, ran a cell on other seeds or from
+    another swap source, or differs from the column in a setting or ``CONDITIONS`` but those named in ``allowed``
+    (module docstring)."""
+    run = column_manifest(run_dir)
+    ours, theirs = cells_of(manifest), cells_of(run)
+    added = sorted(set(theirs) - set(ours))
+    if added:
+        raise ManifestError(f"{run_dir} holds cells (task, set) that column {column!r} lacks: {added[:4]}; a run "
+                            f"replaces cells of the column it follows, it adds none")
+    notes = [f"{column}: the cells of {', '.join(sorted({task for task, _ in theirs}))} ({len(theirs)} of "
+             f"{len(ours)}) replaced by those of {run_dir}"]
+    for key in sorted(theirs):
+        if theirs[key].eval_seeds != ours[key].eval_seeds:
+            raise ManifestError(f"{key[0]}, set {key[1]}: {run_dir} ran seeds {_span(theirs[key].eval_seeds)}, "
+                                f"column {column!r} {_span(ours[key].eval_seeds)}; evaluate it on the column's seeds")
+        if theirs[key].swap_source != ours[key].swap_source:
+            raise ManifestError(f"{key[0]}, set {key[1]}: {run_dir} read {theirs[key].swap_source}'s "
+                                f"demonstrations, column {column!r} {ours[key].swap_source}'s")
+        if theirs[key].demo_fingerprint != ours[key].demo_fingerprint:
+            notes.append(f"{column}: {key[0]}, set {key[1]} from {run_dir}: its demonstrations were recorded again "
+                         f"(another fingerprint than the manifest's)")
+    settings, run_settings = manifest["settings"], run["settings"]
+    changed = sorted(key for key in settings.keys() | run_settings.keys() if settings.get(key) != run_settings.get(key)
+                     and SETTING_ALLOWANCES.get(key) not in allowed)
+    if changed:
+        values = "; ".join(f"{key}: {settings.get(key)} in the column, {run_settings.get(key)} in the run"
+                           for key in changed)
+        nameable = sorted({SETTING_ALLOWANCES[key] for key in changed if key in SETTING_ALLOWANCES})
+        hint = "".join(f" --allow-difference {name}" for name in nameable)
+        raise ManifestError(f"{run_dir} was evaluated with other settings than column {column!r} ({values}); "
+                            f"evaluate it with the column's" + (f", or name the difference with{hint}" if hint else ""))
+    replaced = {(cell["task"], cell["demo_set"]): cell for cell in run["cells"]}
+    check_conditions({column: {**manifest, "cells": [cell for cell in manifest["cells"]
+                                                     if (cell["task"], cell["demo_set"]) in replaced]},
+                      f"{column} from {run_dir}": run}, allowed)
+    records = [record for record in manifest.get("replaced_cells", [])
+               if (record["task"], record["demo_set"]) not in replaced]
+    records += [{"task": task, "demo_set": demo_set, "from": str(run_dir)} for task, demo_set in sorted(replaced)]
+    cells = [replaced.get((cell["task"], cell["demo_set"]), cell) for cell in manifest["cells"]]
+    return {**manifest, "cells": cells, "replaced_cells": records}, notes
 
 
 def manifest_counts(name: str, manifest: dict) -> list[SuccessCount]:

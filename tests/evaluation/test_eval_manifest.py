@@ -2,7 +2,8 @@
 lerobot-eval reports them), demonstration set and conditions (checkpoint digest, policy options, success criterion,
 hold steps, step limit, env arguments, video size); ``lerobot-ip-eval-table`` refuses columns whose cells, seeds,
 demonstration sets or conditions differ (each refusal tested; a condition named with ``--allow-difference`` is
-joined), reads manifests written before a field was recorded and says what it could not check, and the paired
+joined), reads manifests written before a field was recorded and says what it could not check, amends a manifest's
+column with a run of some of its cells (only cells it holds, on its seeds, settings and conditions), and the paired
 difference with its cluster bootstrap interval (over tasks, or cells) on small known cases and on the committed
 MetaWorld manifest."""
 
@@ -269,6 +270,83 @@ def test_manifests_written_before_the_conditions_are_read_and_what_they_lack_is_
     assert eval_table([f"per_object={old}", "--out", str(tmp_path / "one")]) == 0
     assert eval_table([f"missing={old}", "--out", str(tmp_path / "one")]) == 2
     assert "has no column 'missing'" in capsys.readouterr().err
+
+
+def amendable_manifest(fake_suite, tmp_path) -> Path:
+    """The manifest file of a table of two columns evaluated alike, ``demo_replay`` and ``other``: push_button 1/2
+    and open_drawer 0/2 each."""
+    cells = two_cells([True, False], [False, False])
+    replay = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1), cells)
+    other = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, run_name="other"), cells)
+    assert eval_table([f"demo_replay={replay}", f"other={other}", "--out", str(tmp_path / "table")]) == 0
+    return tmp_path / "table.manifest.json"
+
+
+def test_a_run_after_a_manifest_replaces_that_columns_cells_of_its_tasks(fake_suite, tmp_path, capsys):
+    """open_drawer evaluated again under demo_replay's name, after the manifest: demo_replay's open_drawer cell is
+    the run's (its demonstrations recorded again, which is noted), every other cell stays; the counts and the paired
+    difference are the amended column's, and the written manifest names the replaced cell and its run and is read
+    back as the same table."""
+    manifest = amendable_manifest(fake_suite, tmp_path)
+    columns = json.loads(manifest.read_text())
+    (drawer,) = [cell for cell in columns["demo_replay"]["cells"] if cell["task"] == "open_drawer"]
+    drawer["demo_fingerprint"] = "0" * 64
+    manifest.write_text(json.dumps(columns))
+    rerun = fake_suite(SuiteSettings(out=tmp_path / "rerun", episodes=2, demo_sets=1),
+                       {("open_drawer", 0): [True, True]}, tasks=["open_drawer"])
+    capsys.readouterr()
+    out = tmp_path / "amended"
+    assert eval_table([str(manifest), f"demo_replay={rerun}", "--paired", "other=demo_replay", "--json", "--out",
+                       str(out)]) == 0
+    output = capsys.readouterr()
+    table = json.loads(output.out)
+    assert {(row["task"], row["policy"]): row["successes"] for row in table["rows"]} == {
+        ("open_drawer", "demo_replay"): 2, ("open_drawer", "other"): 0, ("push_button", "demo_replay"): 1,
+        ("push_button", "other"): 1}
+    assert table["overall"]["demo_replay"]["successes"] == 3 and table["overall"]["other"]["successes"] == 1
+    assert table["paired"][0]["difference"] == -0.5
+    assert f"demo_replay: the cells of open_drawer (1 of 2) replaced by those of {rerun}" in output.err
+    assert f"demo_replay: open_drawer, set 0 from {rerun}: its demonstrations were recorded again" in output.err
+    written = json.loads(out.with_suffix(".manifest.json").read_text())
+    assert written["demo_replay"]["replaced_cells"] == [{"task": "open_drawer", "demo_set": 0, "from": str(rerun)}]
+    assert {cell["task"]: cell["successes"] for cell in written["demo_replay"]["cells"]} == {
+        "open_drawer": [True, True], "push_button": [True, False]}
+    assert written["demo_replay"]["run_dir"] == columns["demo_replay"]["run_dir"]
+    assert written["other"] == columns["other"]
+    assert eval_table([str(out.with_suffix(".manifest.json")), "--json", "--out", str(tmp_path / "again")]) == 0
+    assert json.loads(capsys.readouterr().out)["rows"] == table["rows"]
+
+
+def test_a_run_that_does_not_match_the_column_it_amends_is_refused(fake_suite, tmp_path, capsys):
+    """Refused: a run holding a cell the column lacks, one on other seeds, one with another setting, one with
+    another condition (its setting and the conditions it sets, unless named with --allow-difference), and a run
+    given before the manifest that holds its column."""
+    manifest = amendable_manifest(fake_suite, tmp_path)
+    base = SuiteSettings(out=tmp_path / "rerun", episodes=2, demo_sets=1)
+
+    def amend(settings: SuiteSettings, *arguments: str) -> tuple[int, str]:
+        run = fake_suite(settings, {("open_drawer", s): [True, True] for s in range(settings.demo_sets)},
+                         tasks=["open_drawer"])
+        capsys.readouterr()
+        code = eval_table([str(manifest), f"demo_replay={run}", *arguments, "--out", str(tmp_path / "t")])
+        return code, capsys.readouterr().err
+
+    code, error = amend(dataclasses.replace(base, demo_sets=2, run_name="more"))
+    assert code == 2 and "holds cells (task, set) that column 'demo_replay' lacks: [('open_drawer', 1)]" in error
+    code, error = amend(dataclasses.replace(base, eval_seed=2000, run_name="seeds"))
+    assert code == 2 and "open_drawer, set 0:" in error and "ran seeds 2000…2001, column 'demo_replay' 1000…1001" in error
+    code, error = amend(dataclasses.replace(base, batch_size=1, run_name="batch"))
+    assert code == 2 and "batch_size: 2 in the column, 1 in the run" in error and "--allow-difference" not in error
+    options = dataclasses.replace(base, policy_args=("--policy.registration_per_object=true",), run_name="options")
+    code, error = amend(options)
+    assert code == 2 and "policy_args" in error and "--allow-difference policy_options" in error
+    assert amend(options, "--allow-difference", "policy_options")[0] == 0
+    instant = dataclasses.replace(base, success="instant", run_name="instant")
+    code, error = amend(instant, "--allow-difference", "success")
+    assert code == 2 and "differ in hold_steps" in error
+    assert amend(instant, "--allow-difference", "success", "--allow-difference", "hold_steps")[0] == 0
+    assert eval_table([f"demo_replay={instant.runs_dir}", str(manifest), "--out", str(tmp_path / "t")]) == 2
+    assert "put the manifest file first" in capsys.readouterr().err
 
 
 def test_the_committed_metaworld_manifest_rederives_its_paired_differences(tmp_path, capsys):
