@@ -5,7 +5,8 @@ demonstration) vary one at a time around a default setting (``python -m workbenc
 Every setting is the installed probe's (``lerobot-ip-action-error``,
 :mod:`lerobot_instant_policy.evaluation.action_error`: the same held-out frames, the same DDIM noise per frame, each
 value in the config's ranges), so the rows compare on the same draws; the references (context swap, context gain,
-untrained, holding still, per third of the live episodes) are taken at the default setting, the first row.
+untrained, holding still, per third of the live episodes, per task, and the intervals over tasks of the error over
+holding still's and of the context gain) are taken at the default setting, the first row.
 """
 
 from __future__ import annotations
@@ -41,9 +42,9 @@ def action_error_sweep(policy_path: str | Path, root: str | Path, tasks: int = 1
     :func:`grid` (module docstring).
 
     Returns a JSON-ready dict: ``default``, ``settings`` (one row per (K, N, L), the default first), the references at
-    the default setting (``swap``, ``context_gain``, ``untrained`` with ``untrained``, ``hold``, ``phases``), the
-    dataset and sample description and the wall time. Every setting is checked before anything is evaluated;
-    ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad input.
+    the default setting (``swap``, ``context_gain``, ``untrained`` with ``untrained``, ``hold``, ``phases``,
+    ``per_task``, ``intervals``), the dataset and sample description and the wall time. Every setting is checked
+    before anything is evaluated; ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad input.
     """
     start = time.perf_counter()
     default = tuple(default)

@@ -19,9 +19,12 @@ run's new start, the best save kept apart for shipping, and a point on the scali
    (K = 4, N = 2, L = 10, ``val_tasks`` × ``val_frames_per_task`` frames) on both sets;
 4. keeps it (:func:`keep`): the save replaces ``checkpoints/stream/last/`` whether or not it is better (a metric may
    dip before it improves), its weights replace ``checkpoints/stream/best/`` only when closer than the best's to the
-   actions, relative to holding still, on both sets, and its point joins ``docs/scaling_curve.{json,png}``.
+   actions, relative to holding still, on both sets (the point estimates), and its point joins
+   ``docs/scaling_curve.{json,png}`` (the figures with their 95% intervals over tasks, drawn as error bars).
    ``standing.json`` in the save holds every run so far: samples and distinct tasks (this run's and in all), the
-   pool's rates and uses per task, the figures.
+   pool's rates and uses per task, the figures with their intervals, the per-task errors behind them and, once a
+   best is kept, the paired difference from the best on each set (``against_best``), so a reader can tell a real
+   change from the noise of a few validation tasks.
 
 With ``--out`` the save and its record are packed into ``OUT`` instead (``save.tar`` and ``standing.json``, two
 files), for ``accept`` to keep here.
@@ -39,6 +42,8 @@ import time
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+
+from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionErrorError, paired_ratio_difference
 
 from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
 
@@ -183,14 +188,25 @@ def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.
 
 def figures(result: dict) -> dict:
     """Translation error, its ratio to holding still and the context gain in translation, from
-    ``lerobot-ip-action-error``'s default setting."""
+    ``lerobot-ip-action-error``'s default setting, with the two ratios' 95% intervals over tasks
+    (``vs_holding_still_interval``, ``context_gain_interval``: ``[low, high]``, None for one task)."""
     own, hold = result["settings"][0]["translation_mm"], result["hold"]["translation_mm"]
     return {"translation_mm": own, "hold_translation_mm": hold, "vs_holding_still": round(own / hold, 4),
-            "context_gain": result["context_gain"]["translation"]}
+            "context_gain": result["context_gain"]["translation"],
+            "vs_holding_still_interval": result["intervals"]["vs_holding_still"],
+            "context_gain_interval": result["intervals"]["context_gain_translation"]}
+
+
+def per_task(result: dict) -> dict:
+    """What a later run needs of ``lerobot-ip-action-error``'s ``result`` to compare itself with this one paired
+    (:data:`~lerobot_instant_policy.evaluation.action_error.PAIRED_KEYS`: the seed, frames per task, horizon and the
+    per-task errors)."""
+    return {key: result[key] for key in PAIRED_KEYS}
 
 
 def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
-    """``lerobot-ip-action-error`` figures of ``checkpoint`` (a pretrained_model folder) on both sets."""
+    """``lerobot-ip-action-error``'s results for ``checkpoint`` (a pretrained_model folder) on both sets (set →
+    result)."""
     results = {}
     for name in VALIDATION_CONFIGS:
         command = program("lerobot-ip-action-error") + [
@@ -200,7 +216,7 @@ def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
         done = subprocess.run(command, capture_output=True, text=True)
         if done.returncode != 0:
             raise StandingError(f"validation on {name} failed: {done.stderr[-2000:]}")
-        results[name] = figures(json_result(done.stdout))
+        results[name] = json_result(done.stdout)
     return results
 
 
@@ -237,7 +253,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     for name, process in generating.items():
         if process is not None and process.wait() != 0:
             raise StandingError(f"generating the {name} validation set failed: {process.stderr.read()[-2000:]}")
-    validation = validate(config, save / MODEL_DIR, work / "validation")
+    results = validate(config, save / MODEL_DIR, work / "validation")
     pool = json.loads((save / POOL_STATE).read_text())["stats"]
     steps = step_of(save) - start_step
     samples, tasks = steps * config.batch_size, pool["distinct_tasks_used"]
@@ -248,7 +264,8 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         "start_step": start_step, "end_step": step_of(save), "samples": samples, "tasks": tasks,
         "samples_total": before["samples_total"] + samples, "tasks_total": before["tasks_total"] + tasks,
         "trained_s": round(pool["elapsed_s"], 1), "wall_s": round(time.monotonic() - started, 1),
-        "pool": pool, "validation": validation, "config": asdict(config),
+        "pool": pool, "validation": {name: figures(result) for name, result in results.items()},
+        "validation_per_task": {name: per_task(result) for name, result in results.items()}, "config": asdict(config),
         "hidden_dim": json.loads((save / MODEL_DIR / "config.json").read_text())["hidden_dim"],
     }
     record = {"runs": [*previous["runs"], entry]}
@@ -262,6 +279,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         (out / RECORD).write_text(json.dumps(record, indent=2))
     else:
         keep(save, standing, curve_file)
+        record = read_record(standing / "last")
     return record
 
 
@@ -273,21 +291,42 @@ def beats(validation: dict, best: dict | None) -> bool:
                                for name in VALIDATION_CONFIGS)
 
 
+def against_best(entry: dict, best: dict) -> dict:
+    """The paired difference, this run − the best, of the error over holding still's and of the context gain on each
+    validation set (:func:`~lerobot_instant_policy.evaluation.action_error.paired_ratio_difference` of the two runs'
+    ``validation_per_task``; ``entry``, ``best``: runs of a record; in each ratio ``a`` is this run's, ``b`` the
+    best's), with the best's end step and samples. A set where the two cannot be paired (the best's record is older
+    than its per-task errors, other frames) holds ``{"not_compared": why}``."""
+    comparison = {"best_end_step": best["end_step"], "best_samples_total": best["samples_total"]}
+    for name in VALIDATION_CONFIGS:
+        try:
+            comparison[name] = paired_ratio_difference(entry.get("validation_per_task", {}).get(name, {}),
+                                                       best.get("validation_per_task", {}).get(name, {}))
+        except ActionErrorError as error:
+            comparison[name] = {"not_compared": str(error)}
+    return comparison
+
+
 def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
     """Make ``save`` (a folder with ``pretrained_model/``, ``training_state/`` and ``standing.json``) the run's last
-    save, its weights the best when they beat the best on both sets, and add its point to the curve."""
+    save, its weights the best when they beat the best on both sets, and add its point to the curve. Where a best is
+    kept already, the run's record in the last save (and in the best, when it becomes the best) also holds
+    ``against_best`` (:func:`against_best`: the paired difference from the previous best, whatever the rule
+    decides). Returns ``best`` (kept as the best), the curve's ``point`` and ``against_best`` (None without a best)."""
     record = read_record(save)
     entry = record["runs"][-1]
     last, best = standing / "last", standing / "best"
+    previous_best = read_record(best)["runs"][-1] if (best / RECORD).is_file() else None
+    if previous_best is not None:
+        entry["against_best"] = against_best(entry, previous_best)
     staging = standing / ".last-new"
     shutil.rmtree(staging, ignore_errors=True)
     for part in (MODEL_DIR, STATE_DIR):
         shutil.copytree(save / part, staging / part)
-    shutil.copy2(save / RECORD, staging / RECORD)
+    (staging / RECORD).write_text(json.dumps(record, indent=2))
     shutil.rmtree(last, ignore_errors=True)
     staging.rename(last)  # the old last save stays whole until the new one is complete
-    kept = beats(entry["validation"], read_record(best)["runs"][-1]["validation"] if (best / RECORD).is_file()
-                 else None)
+    kept = beats(entry["validation"], previous_best["validation"] if previous_best is not None else None)
     if kept:
         shutil.rmtree(best, ignore_errors=True)
         shutil.copytree(save / MODEL_DIR, best / MODEL_DIR)
@@ -297,7 +336,7 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
                         kept, f"standing run from step {entry['start_step']} to {entry['end_step']}, "
                               f"{entry['started']}, {entry['device']}")
     add_curve_point(point, curve_file)
-    return {"best": kept, "point": point}
+    return {"best": kept, "point": point, "against_best": entry.get("against_best")}
 
 
 def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
@@ -313,7 +352,8 @@ def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FIL
 def curve_point(samples_total: int, tasks_total: int, hidden_dim: int, device: str, validation: dict,
                 val_tasks: int, val_frames_per_task: int, kept: bool, source: str) -> dict:
     """One point of the scaling curve: what was seen (samples and distinct tasks, every lease so far), the width and
-    where it trained, and the checkpoint's figures on each validation set (``validation``: set → :func:`figures`)."""
+    where it trained, and the checkpoint's figures on each validation set (``validation``: set → :func:`figures`,
+    as ``<set>_<figure>``; runs validated before the intervals were kept have no ``*_interval``)."""
     return {"samples_total": samples_total, "tasks_total": tasks_total, "hidden_dim": hidden_dim, "device": device,
             "kept": kept, "val_tasks": val_tasks, "val_frames_per_task": val_frames_per_task, "source": source,
             **{f"{name}_{key}": value for name, result in validation.items() for key, value in result.items()}}
@@ -329,7 +369,8 @@ def add_curve_point(point: dict, curve_file: Path = CURVE_FILE) -> None:
 
 def plot_curve(points: list[dict], png: Path) -> None:
     """Error against holding still and context gain on both validation sets, against samples seen (log axis), one
-    marker per device and width (CPU points hollow)."""
+    marker per device and width (CPU points hollow), with an error bar (the 95% interval over tasks) on each point
+    that has one."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -340,16 +381,24 @@ def plot_curve(points: list[dict], png: Path) -> None:
                              (axes[1], "context_gain", "context gain, swap / own error (higher is better)")):
         for name, color in (("moved", "tab:red"), ("one_layout", "tab:blue")):
             for (device, width), group in _groups(points).items():
-                chosen = sorted((point["samples_total"], point[f"{name}_{key}"]) for point in group)
-                axis.plot([max(x, 1) for x, _ in chosen], [y for _, y in chosen], "-o", color=color,
-                          markerfacecolor="none" if device == "cpu" else color,
+                chosen = sorted(group, key=lambda point: point["samples_total"])
+                xs = [max(point["samples_total"], 1) for point in chosen]
+                ys = [point[f"{name}_{key}"] for point in chosen]
+                axis.plot(xs, ys, "-o", color=color, markerfacecolor="none" if device == "cpu" else color,
                           label=f"{name.replace('_', ' ')}, {device}, hidden {width}")
+                bars = [(x, y, point[f"{name}_{key}_interval"]) for x, y, point in zip(xs, ys, chosen)
+                        if point.get(f"{name}_{key}_interval") is not None]
+                if bars:
+                    axis.errorbar([x for x, _, _ in bars], [y for _, y, _ in bars], fmt="none", ecolor=color,
+                                  capsize=3, yerr=[[max(y - low, 0.0) for _, y, (low, _) in bars],
+                                                   [max(high - y, 0.0) for _, y, (_, high) in bars]])
         axis.set_xscale("log")
         axis.set_xlabel("samples seen on the stream (log; 0 drawn at 1)")
         axis.set_ylabel(label)
         axis.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    figure.suptitle("instant_policy on the pseudo-task stream: held-out pseudo-tasks, held-out objects")
+    figure.suptitle("instant_policy on the pseudo-task stream: held-out pseudo-tasks, held-out objects\n"
+                    "bars: 95% intervals over tasks, where measured", fontsize=10)
     figure.tight_layout()
     figure.savefig(png, dpi=120)
     plt.close(figure)

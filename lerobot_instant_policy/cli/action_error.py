@@ -1,7 +1,8 @@
 """``lerobot-ip-action-error``: the command line of :mod:`lerobot_instant_policy.evaluation.action_error` (offline
 action error of an ``instant_policy`` checkpoint on held-out pseudo-tasks at one setting of K, N and L, with the
-hold-still, untrained and context-swap references); prints JSON. The repository's sweep over several settings is
-``python -m workbench.cli.action_error_sweep`` in a clone."""
+hold-still, untrained and context-swap references); prints JSON, and without ``--json`` a line after it on stderr
+with the error over holding still's and the context gain, each with its 95% interval over tasks. The repository's
+sweep over several settings is ``python -m workbench.cli.action_error_sweep`` in a clone."""
 
 from __future__ import annotations
 
@@ -43,7 +44,30 @@ def add_prediction_and_output(parser: argparse.ArgumentParser) -> None:
                              "the checkpoint's)")
     parser.add_argument("--no-untrained", action="store_true", help="skip the freshly initialised reference")
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--json", action="store_true", help="print JSON only (the default output is JSON too)")
+    parser.add_argument("--json", action="store_true",
+                        help="print JSON only (without it the JSON is followed, on stderr, by a line of the figures "
+                             "with their intervals over tasks)")
+
+
+def _number(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+def _bracket(interval: list[float] | None) -> str:
+    return "[-]" if interval is None else f"[{interval[0]:.3f}, {interval[1]:.3f}]"
+
+
+def summary_line(result: dict) -> str:
+    """The first setting of an action-error result (:func:`~..evaluation.action_error.action_error`, or the
+    workbench sweep's) in one line: its translation error, the error over holding still's and the context gain in
+    translation, each ratio followed by its 95% interval over tasks."""
+    own, hold = result["settings"][0], result["hold"]["translation_mm"]
+    intervals = result["intervals"]
+    return (f"K={own['K']} N={own['N']} L={own['L']}, {result['tasks']} tasks x {result['frames_per_task']} frames: "
+            f"{own['translation_mm']:.2f} mm, {_number(own['translation_mm'] / hold if hold > 0 else None)} x "
+            f"holding still {_bracket(intervals['vs_holding_still'])}, context gain "
+            f"{_number(result['context_gain']['translation'])} {_bracket(intervals['context_gain_translation'])} "
+            f"(95% intervals: cluster bootstrap over {intervals['clusters']} tasks)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -73,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: non-finite errors {result['settings']}", file=sys.stderr)
         return 1
     print(json.dumps(result, indent=2))
+    if not args.json:
+        print(summary_line(result), file=sys.stderr)
     return 0
 
 

@@ -24,7 +24,16 @@ model), and the **context swap**: the same checkpoint, frames and noise, with th
 pseudo-task (in the order above, the last task taking the first's) relabelled as this task's. **Context gain** = swap
 error / own error, for translation, rotation and gripper (error = 1 − accuracy): about 1 for a policy that ignores
 its demonstrations. The setting's translation error, holding still's and the swap's are also given per third of the
-live episodes (``phases``: the approach, the middle, the end), to show where along a task the demonstrations are read.
+live episodes (``phases``: the approach, the middle, the end), to show where along a task the demonstrations are read,
+and per pseudo-task (``per_task``: its frames and its mean translation errors, own, holding still's and the swap's).
+
+Intervals. The frames of one task share its difficulty, so they are not independent draws: the two figures a reader
+compares, the translation error over holding still's (own / hold, "× holding still") and the context gain in
+translation (swap / own), carry a 95% percentile cluster bootstrap interval over tasks (``intervals``): the tasks are
+resampled with replacement (10,000 resamples from a ``numpy`` generator with a fixed seed, so the same per-task errors
+give the same interval), each ratio of mean errors is recomputed on the resample's frames, and the interval is the
+2.5th and 97.5th percentiles (none for a single task). Two results on the same frames (two checkpoints, say) compare
+paired with :func:`paired_ratio_difference`: the difference of each ratio, with the tasks resampled jointly for both.
 
 K is handed to ``predict_action_chunk`` (``num_inference_steps``) at every prediction; the checkpoint's config is
 left as it was loaded, except ``samples_per_prediction`` when given (every setting and reference then predicts the
@@ -40,6 +49,7 @@ import dataclasses
 import math
 import sys
 import time
+from itertools import zip_longest
 from pathlib import Path
 
 import numpy as np
@@ -48,11 +58,16 @@ import torch
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
 from ..modeling_instant_policy import InstantPolicyPolicy
+from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
 PHASES = ("first_third", "middle_third", "last_third")
+RATIOS = ("vs_holding_still", "context_gain_translation")  # own / hold and swap / own, of the translation error
+BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED = 10_000, 0
+PAIRED_KEYS = ("seed", "frames_per_task", "horizon_T", "per_task")  # what paired_ratio_difference reads of a result
+HOLD_TOLERANCE_MM = 0.01  # holding still's error on a task further apart than this: other frames, not paired
 
 
 class ActionErrorError(ValueError):
@@ -99,11 +114,13 @@ def chunk_errors(predicted: np.ndarray, target: np.ndarray) -> dict[str, np.ndar
     return {"translation_mm": translation, "rotation_deg": rotation, "gripper_correct": gripper}
 
 
-def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = None) -> dict:
+def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = None,
+              tasks: list[int] | None = None) -> dict:
     """Means over all frames and horizon steps of :func:`chunk_errors` results (one per frame, each ``(T,)``), the
     first horizon step's mean translation error, and standard errors over frames (``*_sem``); with ``phases`` (each
     frame's :attr:`LiveFrame.phase`), ``by_phase``: the mean translation error (mm) and frame count of each third of
-    the live episodes."""
+    the live episodes; with ``tasks`` (each frame's task number, 0 … tasks − 1), ``translation_mm_by_task``: each
+    task's mean translation error (mm), in task order."""
     translation = np.concatenate([e["translation_mm"].ravel() for e in errors])
     rotation = np.concatenate([e["rotation_deg"].ravel() for e in errors])
     gripper = np.concatenate([e["gripper_correct"].ravel() for e in errors])
@@ -133,6 +150,13 @@ def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = No
             chosen = per_frame[phase_of_frame == index]
             summary["by_phase"][name] = {"translation_mm": round(float(chosen.mean()), 3) if chosen.size else None,
                                          "frames": int(chosen.size)}
+    if tasks is not None:
+        if len(tasks) != len(errors):
+            raise ValueError(f"one task per frame: {len(tasks)} tasks for {len(errors)} frames")
+        per_frame = np.array([e["translation_mm"].mean() for e in errors])
+        task_of_frame = np.asarray(tasks)
+        summary["translation_mm_by_task"] = [round(float(per_frame[task_of_frame == task].mean()), 3)
+                                             for task in range(int(task_of_frame.max()) + 1)]
     return summary
 
 
@@ -200,8 +224,13 @@ def evaluate_setting(policy: InstantPolicyPolicy, tasks: list[HeldOutTask], sett
         seconds += time.perf_counter() - start
         errors += [chunk_errors(p, f.target.astype(np.float64)) for p, f in zip(predictions, held_out.frames)]
     phases = [frame.phase for held_out in tasks for frame in held_out.frames]
-    return {"K": k, "N": n, "L": l, **summarise(errors, phases),
+    return {"K": k, "N": n, "L": l, **summarise(errors, phases, task_of_frames(tasks)),
             "ms_per_prediction": round(1000 * seconds / len(errors), 1)}
+
+
+def task_of_frames(tasks: list[HeldOutTask]) -> list[int]:
+    """The task number (index in ``tasks``) of every frame of ``tasks``, in the order the frames are evaluated."""
+    return [number for number, held in enumerate(tasks) for _ in held.frames]
 
 
 def hold_reference(tasks: list[HeldOutTask]) -> dict:
@@ -209,7 +238,7 @@ def hold_reference(tasks: list[HeldOutTask]) -> dict:
     frames = [f for held in tasks for f in held.frames]
     errors = [chunk_errors(np.repeat(f.state[None].astype(np.float64), len(f.target), axis=0),
                            f.target.astype(np.float64)) for f in frames]
-    return summarise(errors, [f.phase for f in frames])
+    return summarise(errors, [f.phase for f in frames], task_of_frames(tasks))
 
 
 def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
@@ -250,6 +279,106 @@ def phase_table(own: dict, hold: dict, swap: dict) -> dict:
                        "swap_mm": swap_mm, "over_hold": _ratio(own_mm, hold_mm),
                        "context_gain": _ratio(swap_mm, own_mm)}
     return table
+
+
+def task_table(tasks: list[HeldOutTask], own: dict, hold: dict, swap: dict) -> list[dict]:
+    """One row per pseudo-task of ``tasks``, in their order: its ``task`` string, its ``frames`` and its mean
+    translation error (mm) with the checkpoint's own demonstrations, holding still and the context swap (``own_mm``,
+    ``hold_mm``, ``swap_mm``: ``translation_mm_by_task`` of three :func:`summarise` results of ``tasks`` at one
+    setting)."""
+    return [{"task": held.task, "frames": len(held.frames), "own_mm": own_mm, "hold_mm": hold_mm, "swap_mm": swap_mm}
+            for held, own_mm, hold_mm, swap_mm in zip(tasks, own["translation_mm_by_task"],
+                                                      hold["translation_mm_by_task"],
+                                                      swap["translation_mm_by_task"], strict=True)]
+
+
+def _task_sums(per_task: list[dict]) -> dict[str, np.ndarray]:
+    """``own``, ``hold`` and ``swap``: each task's translation error summed over its frames (mean × frames),
+    ``(tasks,)``, from a :func:`task_table`."""
+    frames = np.array([row["frames"] for row in per_task], dtype=float)
+    return {name: frames * np.array([row[f"{name}_mm"] for row in per_task], dtype=float)
+            for name in ("own", "hold", "swap")}
+
+
+def _ratios(sums: dict[str, np.ndarray], draws: np.ndarray) -> np.ndarray:
+    """The :data:`RATIOS` (own / hold, swap / own of the mean translation error over the frames of the tasks in
+    ``draws``: task indices ``(tasks,)`` or ``(resamples, tasks)``), ``(2,)`` or ``(2, resamples)``."""
+    own, hold, swap = (sums[name][draws].sum(axis=-1) for name in ("own", "hold", "swap"))
+    return np.stack([own / hold, swap / own])
+
+
+def _interval(low: float, high: float) -> list[float] | None:
+    """``[low, high]`` to 4 decimals; None where there is no interval (NaN: one task)."""
+    return None if math.isnan(low) else [round(low, 4), round(high, 4)]
+
+
+def _bootstrap_description(tasks: int, resamples: int, seed: int) -> dict:
+    """What an interval of :func:`task_intervals` or :func:`paired_ratio_difference` resampled, for its JSON."""
+    return {"unit": "task", "clusters": tasks, "resamples": resamples, "seed": seed, "confidence": CONFIDENCE,
+            "method": "percentile cluster bootstrap: tasks resampled with replacement, each ratio of mean errors "
+                      "recomputed on the resample's frames; null for one task"}
+
+
+def task_intervals(per_task: list[dict], resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> dict:
+    """The 95% cluster bootstrap intervals over tasks (:func:`.bootstrap.cluster_bootstrap`) of the :data:`RATIOS`
+    of a :func:`task_table`: ``vs_holding_still`` (own / hold) and ``context_gain_translation`` (swap / own), each
+    ``[low, high]`` (None for one task), with what was resampled (``unit``, ``clusters``, ``resamples``, ``seed``,
+    ``confidence``, ``method``)."""
+    sums = _task_sums(per_task)
+    intervals = {}
+    for index, name in enumerate(RATIOS):
+        low, high = cluster_bootstrap(lambda draws: _ratios(sums, draws)[index], len(per_task), resamples, seed)
+        intervals[name] = _interval(low, high)
+    return {**intervals, **_bootstrap_description(len(per_task), resamples, seed)}
+
+
+def _check_paired(a: dict, b: dict) -> None:
+    """``ActionErrorError`` unless results ``a`` and ``b`` hold per-task tables of the same held-out frames."""
+    for name, result in (("a", a), ("b", b)):
+        missing = [key for key in PAIRED_KEYS if key not in result]
+        if missing:
+            raise ActionErrorError(f"result {name} lacks {', '.join(missing)} (a result from before per-task errors "
+                                   f"were kept): it cannot be paired")
+    for key in ("seed", "frames_per_task", "horizon_T"):
+        if a[key] != b[key]:
+            raise ActionErrorError(f"the results differ in {key} ({a[key]} and {b[key]}): other frames, not paired")
+    tasks_a = [(row["task"], row["frames"]) for row in a["per_task"]]
+    tasks_b = [(row["task"], row["frames"]) for row in b["per_task"]]
+    if tasks_a != tasks_b:
+        index, (task_a, task_b) = next((index, pair) for index, pair in enumerate(zip_longest(tasks_a, tasks_b))
+                                       if pair[0] != pair[1])
+        raise ActionErrorError(f"the results were run on different tasks ({len(tasks_a)} and {len(tasks_b)}; task "
+                               f"{index}, as (task, frames): {task_a} and {task_b}): not paired")
+    for row_a, row_b in zip(a["per_task"], b["per_task"]):
+        if abs(row_a["hold_mm"] - row_b["hold_mm"]) > HOLD_TOLERANCE_MM:
+            raise ActionErrorError(f"holding still's error on {row_a['task']} differs ({row_a['hold_mm']} and "
+                                   f"{row_b['hold_mm']} mm): other frames under the same task, not paired")
+
+
+def paired_ratio_difference(a: dict, b: dict, resamples: int = BOOTSTRAP_RESAMPLES,
+                            seed: int = BOOTSTRAP_SEED) -> dict:
+    """a − b of each of the :data:`RATIOS` for two results of :func:`action_error` (or any dicts with their
+    :data:`PAIRED_KEYS`) on the same held-out frames, e.g. two checkpoints, with a 95% cluster bootstrap interval
+    over tasks: the tasks are resampled jointly (the same draws for both), both ratios recomputed on each resample
+    and their difference taken. Per ratio: ``a``, ``b`` (the ratios of the per-task tables), ``difference`` and
+    ``ci95`` (``[low, high]``, None for one task); then what was resampled, as :func:`task_intervals`.
+
+    ``ActionErrorError`` when either lacks a per-task table, or they differ in seed, frames per task, horizon, the
+    tasks (strings and frame counts, in order) or holding still's error on a task (more than
+    :data:`HOLD_TOLERANCE_MM`: other frames)."""
+    _check_paired(a, b)
+    sums_a, sums_b = _task_sums(a["per_task"]), _task_sums(b["per_task"])
+    tasks = len(a["per_task"])
+    every = np.arange(tasks)
+    ratios_a, ratios_b = _ratios(sums_a, every), _ratios(sums_b, every)
+    result = {}
+    for index, name in enumerate(RATIOS):
+        low, high = cluster_bootstrap(lambda draws: _ratios(sums_a, draws)[index] - _ratios(sums_b, draws)[index],
+                                      tasks, resamples, seed)
+        result[name] = {"a": round(float(ratios_a[index]), 4), "b": round(float(ratios_b[index]), 4),
+                        "difference": round(float(ratios_a[index] - ratios_b[index]), 4),
+                        "ci95": _interval(low, high)}
+    return {**result, **_bootstrap_description(tasks, resamples, seed)}
 
 
 def check_setting(config, setting: tuple[int, int, int], samples_per_prediction: int | None = None) -> None:
@@ -313,8 +442,8 @@ def open_probe(policy_path: str | Path, root: str | Path, settings: list[tuple[i
 def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
     """The references at the setting of ``own`` (an :func:`evaluate_setting` row of ``probe``): ``swap`` (another
     task's demonstrations), ``context_gain`` (swap / own), ``untrained`` (the same config freshly initialised,
-    ``torch.manual_seed(0)``; only with ``untrained``), ``hold`` (predicting the current state) and ``phases``
-    (:func:`phase_table`)."""
+    ``torch.manual_seed(0)``; only with ``untrained``), ``hold`` (predicting the current state), ``phases``
+    (:func:`phase_table`), ``per_task`` (:func:`task_table`) and ``intervals`` (:func:`task_intervals`)."""
     setting = (own["K"], own["N"], own["L"])
     result = {"swap": evaluate_setting(probe.policy, swapped_context(probe.tasks), setting)}
     result["context_gain"] = context_gain(own, result["swap"])
@@ -326,6 +455,8 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
         result["untrained"] = evaluate_setting(fresh, probe.tasks, setting)
     result["hold"] = hold_reference(probe.tasks)
     result["phases"] = phase_table(own, result["hold"], result["swap"])
+    result["per_task"] = task_table(probe.tasks, own, result["hold"], result["swap"])
+    result["intervals"] = task_intervals(result["per_task"])
     return result
 
 
@@ -336,9 +467,10 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     L = ``l`` (module docstring).
 
     Returns a JSON-ready dict: ``settings`` (one row, that setting's errors), the references of :func:`references`
-    (``swap``, ``context_gain``, ``untrained`` with ``untrained``, ``hold``, ``phases``), the dataset and sample
-    description and the wall time. Raises ``ActionErrorError`` / ``EvaluationError`` / ``DemonstrationError`` on bad
-    input (a value outside the config's ranges, N ≥ demos per task, …).
+    (``swap``, ``context_gain``, ``untrained`` with ``untrained``, ``hold``, ``phases``, ``per_task``,
+    ``intervals``), the dataset and sample description and the wall time. Raises ``ActionErrorError`` /
+    ``EvaluationError`` / ``DemonstrationError`` on bad input (a value outside the config's ranges, N ≥ demos per
+    task, …).
     """
     start = time.perf_counter()
     probe = open_probe(policy_path, root, [(k, n, l)], tasks, frames_per_task, seed, repo_id, device,

@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bootstrap import cluster_bootstrap
 from .manifest import CellOutcome, ManifestError
 
 RESAMPLES = 10_000
-CONFIDENCE = 0.95
 UNITS = ("task", "cell")  # what the bootstrap resamples (module docstring)
 
 
@@ -85,12 +85,7 @@ def paired_difference(a: str, cells_a: dict[tuple[str, int], CellOutcome], b: st
         counts[1] += len(cells_a[key].successes)
     differences = np.array([d for d, _ in clusters.values()], dtype=float)
     episodes = np.array([n for _, n in clusters.values()], dtype=float)
-    low = high = np.nan
-    if len(clusters) > 1:
-        rng = np.random.default_rng(seed)
-        draws = rng.integers(0, len(clusters), size=(resamples, len(clusters)))
-        resampled = differences[draws].sum(axis=1) / episodes[draws].sum(axis=1)
-        tail = 100 * (1 - CONFIDENCE) / 2
-        low, high = np.percentile(resampled, [tail, 100 - tail])
+    low, high = cluster_bootstrap(lambda draws: differences[draws].sum(axis=1) / episodes[draws].sum(axis=1),
+                                  len(clusters), resamples, seed)
     return PairedDifference(a, b, len(keys), int(episodes.sum()), float(differences.sum() / episodes.sum()),
                             float(low), float(high), unit, len(clusters))

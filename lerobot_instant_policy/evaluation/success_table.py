@@ -36,11 +36,11 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import binomtest
 
+from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .metaworld_suite import SWAP_GROUPS as MT10_KINDS
 
 EVAL_INFO = "eval_info.json"
 DEFAULT_ENV_TYPE = "bullet_tabletop"
-CONFIDENCE = 0.95
 BOOTSTRAP_RESAMPLES = 10_000
 BOOTSTRAP_SEED = 0
 OTHER_GROUP = "other"
@@ -81,13 +81,8 @@ def cluster_interval(successes, episodes, resamples: int = BOOTSTRAP_RESAMPLES,
     (``successes``, ``episodes``: one count per cluster) resampled with replacement; NaNs for fewer than two
     clusters."""
     successes, episodes = np.asarray(successes, dtype=float), np.asarray(episodes, dtype=float)
-    if len(successes) < 2:
-        return math.nan, math.nan
-    draws = np.random.default_rng(seed).integers(0, len(successes), size=(resamples, len(successes)))
-    rates = successes[draws].sum(axis=1) / episodes[draws].sum(axis=1)
-    tail = 100 * (1 - CONFIDENCE) / 2
-    low, high = np.percentile(rates, [tail, 100 - tail])
-    return float(low), float(high)
+    return cluster_bootstrap(lambda draws: successes[draws].sum(axis=1) / episodes[draws].sum(axis=1),
+                             len(successes), resamples, seed)
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """``python -m workbench.cli.action_error_sweep`` (from the repository root): the command line of
 :mod:`workbench.action_error_sweep` (the offline action error of an ``instant_policy`` checkpoint on held-out
 pseudo-tasks as K, N and L vary one at a time, with the hold-still, untrained and context-swap references at the
-default setting); prints JSON. One setting alone is the installed ``lerobot-ip-action-error``."""
+default setting); prints JSON, and without ``--json`` the default setting's line of ``lerobot-ip-action-error``
+on stderr. One setting alone is the installed ``lerobot-ip-action-error``."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import json
 import math
 import sys
 
-from lerobot_instant_policy.cli.action_error import add_checkpoint_and_frames, add_prediction_and_output
+from lerobot_instant_policy.cli.action_error import add_checkpoint_and_frames, add_prediction_and_output, summary_line
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
 from lerobot_instant_policy.evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N, ActionErrorError
 from lerobot_instant_policy.evaluation.checkpoints import EvaluationError
@@ -67,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: non-finite errors {result['settings']}", file=sys.stderr)
         return 1
     print(json.dumps(result, indent=2))
+    if not args.json:
+        print(summary_line(result), file=sys.stderr)
     return 0
 
 

@@ -64,6 +64,7 @@ def test_every_setting_is_the_probes_on_the_same_frames_and_noise(held_out_root,
     for key in ("swap", "hold", "context_gain", "phases"):
         strip = {name: value for name, value in swept[key].items() if name != "ms_per_prediction"}
         assert strip == {name: value for name, value in probe[key].items() if name != "ms_per_prediction"}, key
+    assert swept["per_task"] == probe["per_task"] and swept["intervals"] == probe["intervals"]
     assert ({name: value for name, value in rows[4].items() if name != "ms_per_prediction"}
             == {name: value for name, value in probe["settings"][0].items() if name != "ms_per_prediction"})
 

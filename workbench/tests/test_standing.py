@@ -1,6 +1,7 @@
 """The standing training run (``workbench.standing``): which save a run continues, which saves count as complete,
-the last save always replaced, the best only when it beats the best on both sets, a point on the curve per run, a
-device's packed save kept the same way, and bad settings refused."""
+the last save always replaced, the best only when it beats the best on both sets, a point on the curve per run (with
+the figures' intervals where the run has them), the paired difference from the best recorded where the best's
+per-task errors are kept, a device's packed save kept the same way, and bad settings refused."""
 
 from __future__ import annotations
 
@@ -10,28 +11,53 @@ from pathlib import Path
 
 import pytest
 
+from lerobot_instant_policy.evaluation.action_error import task_intervals
 from workbench.standing import (
     RECORD,
     SAVE_TAR,
     StandingConfig,
     accept,
     complete_saves,
+    figures,
     keep,
+    per_task,
+    plot_curve,
     read_record,
     start_save,
     train_command,
 )
 
+HOLD_MM = [25.0, 30.0, 35.0, 28.0, 32.0, 30.0]
 
-def _entry(moved: float, one_layout: float, samples_total: int) -> dict:
-    def figures(value):
+
+def _action_error(value: float) -> dict:
+    """A ``lerobot-ip-action-error`` result of 6 tasks × 4 frames, ``value`` times holding still's error on each task
+    (a spread of ±5% about it), the swap 1.3 times its own."""
+    own = [value * hold * (1 + 0.05 * (-1) ** index) for index, hold in enumerate(HOLD_MM)]
+    rows = [{"task": f"pseudo-s124-{index:06d}", "frames": 4, "own_mm": round(o, 3), "hold_mm": h,
+             "swap_mm": round(1.3 * o, 3)} for index, (o, h) in enumerate(zip(own, HOLD_MM))]
+    mean = sum(own) / len(own)
+    return {"seed": 0, "frames_per_task": 4, "horizon_T": 8, "tasks": 6,
+            "settings": [{"K": 4, "N": 2, "L": 10, "translation_mm": round(mean, 3)}],
+            "hold": {"translation_mm": round(sum(HOLD_MM) / 6, 3)}, "context_gain": {"translation": 1.3},
+            "per_task": rows, "intervals": task_intervals(rows)}
+
+
+def _entry(moved: float, one_layout: float, samples_total: int, per_task_kept: bool = False) -> dict:
+    """A run's record; with ``per_task_kept`` as a run validated now writes it (figures with their intervals, the
+    per-task errors), else as runs did before the intervals were kept."""
+    def old_figures(value):
         return {"translation_mm": 30 * value, "hold_translation_mm": 30.0, "vs_holding_still": value,
                 "context_gain": 1.3}
 
-    return {"samples_total": samples_total, "tasks_total": samples_total // 30, "hidden_dim": 128, "device": "cpu",
-            "start_step": 0, "end_step": samples_total // 8, "started": "2026-11-27T00:00:00+00:00",
-            "config": {"val_tasks": 24, "val_frames_per_task": 4},
-            "validation": {"moved": figures(moved), "one_layout": figures(one_layout)}}
+    results = {"moved": _action_error(moved), "one_layout": _action_error(one_layout)}
+    entry = {"samples_total": samples_total, "tasks_total": samples_total // 30, "hidden_dim": 128, "device": "cpu",
+             "start_step": 0, "end_step": samples_total // 8, "started": "2026-11-27T00:00:00+00:00",
+             "config": {"val_tasks": 24, "val_frames_per_task": 4}}
+    if per_task_kept:
+        return {**entry, "validation": {name: figures(result) for name, result in results.items()},
+                "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+    return {**entry, "validation": {"moved": old_figures(moved), "one_layout": old_figures(one_layout)}}
 
 
 def _save(root: Path, step: int, entries: list[dict] | None = None, complete: bool = True) -> Path:
@@ -120,3 +146,49 @@ def test_the_command_line_refuses_bad_settings_and_writes_nothing(tmp_path, caps
     assert main(["--standing", str(tmp_path / "s"), "run", "--deadline-s", "10", "--validate-s", "20"]) == 2
     assert "validate_s must lie in" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_figures_carry_the_intervals_over_tasks_and_the_curve_draws_them_where_present(tmp_path):
+    result = _action_error(0.8)
+    figure = figures(result)
+    assert figure["vs_holding_still_interval"] == result["intervals"]["vs_holding_still"]
+    assert figure["context_gain_interval"] == result["intervals"]["context_gain_translation"]
+    low, high = figure["vs_holding_still_interval"]
+    assert low < figure["vs_holding_still"] < high
+    assert per_task(result) == {key: result[key] for key in ("seed", "frames_per_task", "horizon_T", "per_task")}
+    # an old point (no intervals), then new ones: each point carries what its run had; the picture takes both
+    run, standing, curve = tmp_path / "run", tmp_path / "standing", tmp_path / "curve.json"
+    keep(_save(run, 100, [_entry(0.9, 0.6, 800)]), standing, curve)
+    keep(_save(run, 200, [_entry(0.85, 0.55, 1600, per_task_kept=True)]), standing, curve)
+    points = json.loads(curve.read_text())["points"]
+    assert "moved_vs_holding_still_interval" not in points[0]
+    assert points[1]["moved_vs_holding_still_interval"] == figures(_action_error(0.85))["vs_holding_still_interval"]
+    assert points[1]["one_layout_context_gain_interval"] == figures(_action_error(0.55))["context_gain_interval"]
+    assert curve.with_suffix(".png").stat().st_size > 10_000
+    # a point whose interval is null (one task) draws without a bar
+    plot_curve([*points, {**points[1], "samples_total": 2400, "moved_vs_holding_still_interval": None}],
+               tmp_path / "mixed.png")
+    assert (tmp_path / "mixed.png").stat().st_size > 10_000
+
+
+def test_the_paired_difference_from_the_best_is_recorded_where_the_best_kept_its_per_task_errors(tmp_path):
+    run, standing, curve = tmp_path / "run", tmp_path / "standing", tmp_path / "curve.json"
+    first = keep(_save(run, 100, [_entry(0.9, 0.6, 800)]), standing, curve)  # an old record, nothing kept before
+    assert first["best"] and first["against_best"] is None
+    assert "against_best" not in read_record(standing / "last")["runs"][-1]
+    second = keep(_save(run, 200, [_entry(0.85, 0.55, 1600, per_task_kept=True)]), standing, curve)
+    assert second["best"]  # the rule is unchanged: better point estimates on both sets
+    for name in ("moved", "one_layout"):  # the best's record is older than per-task errors: not compared
+        assert "lacks" in second["against_best"][name]["not_compared"]
+    assert second["against_best"]["best_end_step"] == 100
+    third = keep(_save(run, 300, [_entry(0.8, 0.58, 2400, per_task_kept=True)]), standing, curve)
+    assert not third["best"]  # worse on one layout
+    recorded = read_record(standing / "last")["runs"][-1]["against_best"]
+    assert recorded == third["against_best"] and recorded["best_end_step"] == 200
+    moved = recorded["moved"]["vs_holding_still"]
+    assert (moved["a"], moved["b"]) == (pytest.approx(0.8, abs=1e-3), pytest.approx(0.85, abs=1e-3))
+    assert moved["difference"] == pytest.approx(-0.05, abs=1e-3) and moved["ci95"][0] < moved["difference"] < 0
+    assert recorded["one_layout"]["vs_holding_still"]["difference"] == pytest.approx(0.03, abs=1e-3)
+    assert recorded["moved"]["context_gain_translation"]["difference"] == pytest.approx(0.0, abs=1e-3)
+    # the best's own record is left as it was when it was kept
+    assert read_record(standing / "best")["runs"][-1]["end_step"] == 200
