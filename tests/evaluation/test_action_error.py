@@ -59,6 +59,20 @@ def test_action_error_structure_and_determinism(held_out_root, monkeypatch):
     assert first["context_gain"]["translation"] == round(first["swap"]["translation_mm"] / own["translation_mm"], 3)
     assert set(first["phases"]) == set(ae.PHASES)
     assert sum(row["frames"] for row in first["phases"].values()) == first["frames"]
+    # per task: the frames of each, pooling back to the whole; the intervals over the two tasks; paired with itself
+    assert [row["task"] for row in first["per_task"]] == [row["task"] for row in again["per_task"]]
+    assert [row["frames"] for row in first["per_task"]] == [1, 1]
+    for per_task_key, row in (("own_mm", own), ("hold_mm", first["hold"]), ("swap_mm", first["swap"])):
+        pooled = sum(task[per_task_key] * task["frames"] for task in first["per_task"]) / first["frames"]
+        assert pooled == pytest.approx(row["translation_mm"], abs=0.01), per_task_key
+    intervals = first["intervals"]
+    assert (intervals["unit"], intervals["clusters"], intervals["resamples"]) == ("task", 2, ae.BOOTSTRAP_RESAMPLES)
+    for name in ae.RATIOS:
+        low, high = intervals[name]
+        assert low <= high
+    assert intervals == again["intervals"]
+    same = ae.paired_ratio_difference(first, again)
+    assert all(same[name]["difference"] == 0.0 and same[name]["ci95"] == [0.0, 0.0] for name in ae.RATIOS)
     json.dumps(first)
 
 
@@ -113,8 +127,12 @@ def test_samples_per_prediction_reaches_every_prediction_from_the_command_line(h
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--tasks", "2",
                               "--frames-per-task", "1", "--K", "1", "--N", "2", "--L", "10", "--no-untrained",
                               "--samples-per-prediction", "3"]) == 0
-    result = json.loads(capsys.readouterr().out)
+    printed = capsys.readouterr()
+    result = json.loads(printed.out)
     assert result["samples_per_prediction"] == 3 and counts == [3] * 4  # 2 frames own, 2 swapped
+    # without --json, a line for a reader follows on stderr: each ratio with its interval over tasks
+    low, high = result["intervals"]["vs_holding_still"]
+    assert f"x holding still [{low:.3f}, {high:.3f}]" in printed.err and "over 2 tasks" in printed.err
     assert math.isfinite(result["settings"][0]["translation_mm"])
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root),
                               "--samples-per-prediction", "0"]) == 2
@@ -127,7 +145,9 @@ def test_the_command_line_gives_the_figures_a_training_run_reads(held_out_root, 
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--repo-id", "local/val",
                               "--tasks", "2", "--frames-per-task", "1", "--K", "4", "--N", "2", "--L", "10",
                               "--no-untrained", "--json", "--device", "cpu"]) == 0
-    result = json.loads(capsys.readouterr().out)
+    printed = capsys.readouterr()
+    result = json.loads(printed.out)
+    assert "x holding still" not in printed.err  # --json: the JSON alone
     assert result["settings"][0]["translation_mm"] > 0 and result["hold"]["translation_mm"] > 0
     assert result["context_gain"]["translation"] == round(
         result["swap"]["translation_mm"] / result["settings"][0]["translation_mm"], 3)
@@ -185,3 +205,79 @@ def test_phase_table_compares_own_hold_and_swap_per_third():
                                     "over_hold": 0.25, "context_gain": 3.0}
     assert table["middle_third"]["over_hold"] == 1.0 and table["middle_third"]["context_gain"] == 1.5
     assert table["last_third"]["frames"] == 0 and table["last_third"]["over_hold"] is None
+
+
+def _per_task(own: list[float], hold: list[float], swap: list[float], frames: list[int] | None = None) -> list[dict]:
+    """A :func:`ae.task_table` of made-up errors (mm), one task per value."""
+    frames = frames or [4] * len(own)
+    return [{"task": f"pseudo-s1-{index:06d}", "frames": count, "own_mm": o, "hold_mm": h, "swap_mm": w}
+            for index, (o, h, w, count) in enumerate(zip(own, hold, swap, frames, strict=True))]
+
+
+def _result(per_task: list[dict], seed: int = 0) -> dict:
+    return {"seed": seed, "frames_per_task": 4, "horizon_T": 8, "per_task": per_task}
+
+
+def test_task_intervals_on_known_cases():
+    # two tasks of one frame each: a resample holds task 0 twice (1/4 of them), task 1 twice (1/4) or both, so the
+    # percentiles are the ratios of each task alone
+    two = ae.task_intervals(_per_task([1.0, 3.0], [2.0, 2.0], [2.0, 3.0], frames=[1, 1]))
+    assert two["vs_holding_still"] == [0.5, 1.5] and two["context_gain_translation"] == [1.0, 2.0]
+    # every task at the same ratios, whatever its size and frames: no spread, the interval is that ratio
+    hold = [20.0, 30.0, 45.0, 25.0, 60.0, 35.0]
+    own = [0.8 * h for h in hold]
+    same = ae.task_intervals(_per_task(own, hold, [1.5 * o for o in own], frames=[4, 4, 3, 4, 2, 4]))
+    assert same["vs_holding_still"] == [0.8, 0.8] and same["context_gain_translation"] == [1.5, 1.5]
+    # tasks that differ a little give a narrow interval; one task ten times the others' size, far off their ratio,
+    # pulls every resample that draws it: a much wider one
+    spread = [0.78, 0.82, 0.8, 0.79, 0.81, 0.8]
+    mild = ae.task_intervals(_per_task([r * 30 for r in spread], [30.0] * 6, [45.0] * 6))
+    dominated_rows = _per_task([r * 30 for r in spread[:-1]] + [600.0], [30.0] * 5 + [300.0], [45.0] * 6)
+    dominated = ae.task_intervals(dominated_rows)
+    width = {name: interval["vs_holding_still"][1] - interval["vs_holding_still"][0]
+             for name, interval in (("mild", mild), ("dominated", dominated))}
+    assert 0 < width["mild"] < 0.05 and width["dominated"] > 10 * width["mild"]
+    low, high = dominated["vs_holding_still"]
+    assert low < (sum(r * 30 for r in spread[:-1]) + 600) / (5 * 30 + 300) < high
+    # the seed fixes the draws: the same interval again, another seed another one; one task has none
+    assert ae.task_intervals(dominated_rows) == dominated
+    assert ae.task_intervals(dominated_rows, seed=1)["vs_holding_still"] != dominated["vs_holding_still"]
+    assert (dominated["seed"], dominated["resamples"], dominated["clusters"]) == (ae.BOOTSTRAP_SEED, 10_000, 6)
+    one = ae.task_intervals(_per_task([10.0], [20.0], [30.0]))
+    assert one["vs_holding_still"] is None and one["context_gain_translation"] is None
+
+
+def test_paired_ratio_difference_resamples_tasks_jointly_and_refuses_other_frames():
+    hold = [20.0, 30.0, 45.0, 25.0, 60.0, 35.0]
+    own = [16.0, 27.0, 30.0, 24.0, 39.0, 33.0]
+    swap = [30.0, 33.0, 50.0, 26.0, 70.0, 40.0]
+    a = _result(_per_task(own, hold, swap))
+    itself = ae.paired_ratio_difference(a, a)
+    for name in ae.RATIOS:
+        assert itself[name]["difference"] == 0.0 and itself[name]["ci95"] == [0.0, 0.0]
+        assert itself[name]["a"] == itself[name]["b"]
+    # b 10% further from the actions on every task: its ratio over holding still is 1.1 times a's on every
+    # resample, so the difference's interval is -0.1 times a's own interval (the same draws for both)
+    b = _result(_per_task([1.1 * o for o in own], hold, [1.1 * w for w in swap]))
+    paired = ae.paired_ratio_difference(a, b)
+    ratio_a = sum(own) / sum(hold)
+    assert paired["vs_holding_still"]["difference"] == pytest.approx(-0.1 * ratio_a, abs=1e-4)
+    low, high = ae.task_intervals(a["per_task"])["vs_holding_still"]
+    assert paired["vs_holding_still"]["ci95"] == pytest.approx([-0.1 * high, -0.1 * low], abs=2e-4)
+    assert paired["context_gain_translation"]["difference"] == 0.0  # swap and own scaled alike
+    assert (paired["unit"], paired["clusters"]) == ("task", 6)
+    json.dumps(paired)
+    # not the same frames: refused, saying why
+    renamed = _result([{**row, "task": "pseudo-s2-000000"} if index == 0 else row
+                       for index, row in enumerate(b["per_task"])])
+    fewer_frames = _result([{**row, "frames": 3} if index == 2 else row for index, row in enumerate(b["per_task"])])
+    other_hold = _result([{**row, "hold_mm": row["hold_mm"] + 1.0} for row in b["per_task"]])
+    for other, message in ((_result(b["per_task"], seed=1), "differ in seed"),
+                           ({**b, "frames_per_task": 2}, "differ in frames_per_task"),
+                           (_result(b["per_task"][:5]), "different tasks"),
+                           (renamed, "different tasks"),
+                           (fewer_frames, "different tasks"),
+                           (other_hold, "holding still's error on pseudo-s1-000000 differs"),
+                           ({key: value for key, value in b.items() if key != "per_task"}, "lacks per_task")):
+        with pytest.raises(ae.ActionErrorError, match=message):
+            ae.paired_ratio_difference(a, other)
