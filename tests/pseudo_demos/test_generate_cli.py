@@ -29,12 +29,46 @@ def _generate(out, *extra: str) -> int:
     return generate_main(["--out", str(out), "--repo-id", REPO_ID, "--no-progress", *extra])
 
 
+# The module's dataset: two tasks of the full family (seed 37: a pull and a grasp, so that every demonstration carries
+# an object), two demonstrations each, a shard per task.
+ARGUMENTS = ("--num-tasks", "2", "--demos-per-task", "2", "--seed", "37", "--tasks-per-shard", "1")
+
+
 @pytest.fixture(scope="module")
-def dataset_dir(tmp_path_factory):
+def interrupted_and_resumed(tmp_path_factory):
+    """The module's dataset written the hard way: its first shard by this process, then an interruption (the second
+    shard half written), which a plain run must refuse to overwrite, then resumed with 2 worker processes (the
+    second shard and the merge). Returns the output and what each step gave; the resume test checks them and that the
+    result is the dataset one uninterrupted worker writes."""
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+    from lerobot_instant_policy.pseudo_demos.generation import generate_shard, prepare_output, shard_ranges
+
     out = tmp_path_factory.mktemp("gen") / "pseudo"
-    code = _generate(out, "--num-tasks", "3", "--demos-per-task", "3", "--seed", "0", "--workers", "2", "--tasks-per-shard", "2")
-    assert code == 0
-    return out
+    config = config_from_args(build_parser().parse_args(["--out", str(out), "--repo-id", REPO_ID, *ARGUMENTS]))
+    prepare_output(config, overwrite=False, resume=False)
+    finished = generate_shard(config, 0, shard_ranges(config)[0])
+    (out / ".shards" / "shard-00001.tmp" / "data").mkdir(parents=True)
+    finished_episodes = LeRobotDataset(f"{REPO_ID}-shard-00000", root=finished).meta.total_episodes
+    plain_code = _generate(out, *ARGUMENTS)
+    resumed_code = _generate(out, *ARGUMENTS, "--workers", "2", "--resume")
+    return {"out": out, "finished_episodes": finished_episodes, "plain_code": plain_code, "resumed_code": resumed_code}
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(interrupted_and_resumed):
+    assert interrupted_and_resumed["resumed_code"] == 0
+    return interrupted_and_resumed["out"]
+
+
+def _cheap_clouds(directory) -> str:
+    """A generation config file whose clouds cost next to nothing: 32 points per frame from the objects' complete
+    surface samples (``render.cloud = "surface"``: nothing rendered). For the tests that read only the task and scene
+    records or the states and actions, whose properties hold whatever the clouds."""
+    path = directory / "cheap_clouds.json"
+    path.write_text(json.dumps({"demo": {"num_points": 32}, "render": {"cloud": "surface"}}))
+    return str(path)
 
 
 @pytest.fixture(scope="module")
@@ -54,8 +88,8 @@ def test_dataset_loads_and_matches_the_contract(dataset_dir):
     from lerobot.datasets import LeRobotDataset
 
     dataset = LeRobotDataset(REPO_ID, root=dataset_dir)
-    assert dataset.meta.total_episodes == 9
-    assert len(dataset.meta.tasks) == 3
+    assert dataset.meta.total_episodes == 4
+    assert len(dataset.meta.tasks) == 2
     features = dataset.meta.features
     assert features["observation.pointcloud"]["dtype"] == "float32"
     assert tuple(features["observation.pointcloud"]["shape"]) == (2048, 3)
@@ -66,7 +100,7 @@ def test_dataset_loads_and_matches_the_contract(dataset_dir):
     frame = dataset[0]
     assert frame["observation.pointcloud"].shape == (2048, 3)
     assert frame["observation.pointcloud"].dtype == torch.float32
-    assert frame["task"] == "pseudo-s0-000000"
+    assert frame["task"] == "pseudo-s37-000000"
     assert not (dataset_dir / ".shards").exists()
 
 
@@ -94,7 +128,7 @@ def test_consecutive_poses_are_at_most_1cm_and_3deg_apart(episodes):
 def test_demonstrations_of_a_task_share_waypoints_in_object_frames(dataset_dir, episodes):
     tasks = {record["task"]: record for record in map(json.loads, (dataset_dir / "meta/pseudo_tasks.jsonl").read_text().splitlines())}
     scenes = [json.loads(line) for line in (dataset_dir / "meta/pseudo_demos.jsonl").read_text().splitlines()]
-    assert len(scenes) == len(episodes) and len(tasks) == 3
+    assert len(scenes) == len(episodes) and len(tasks) == 2
     for scene, episode in zip(scenes, episodes, strict=True):
         assert scene["task"] == episode["task"] and scene["num_frames"] == len(episode["state"])
         poses = _poses(episode["state"])
@@ -105,7 +139,7 @@ def test_demonstrations_of_a_task_share_waypoints_in_object_frames(dataset_dir, 
             assert translation[closest] < 1e-4 and rotation[closest] < 1e-4, f"{scene['task']}: a waypoint is never reached"
     for task in tasks:
         layouts = [np.asarray(scene["T_world_objects"]) for scene in scenes if scene["task"] == task]
-        assert len(layouts) == 3
+        assert len(layouts) == 2
         assert not np.allclose(layouts[0], layouts[1]), "demonstrations must place the objects anew"
 
 
@@ -143,28 +177,24 @@ def _table(root) -> dict[str, np.ndarray]:
     }
 
 
-def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with_more_workers(tmp_path, dataset_dir):
-    from lerobot.datasets import LeRobotDataset
+def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with_more_workers(
+    tmp_path, interrupted_and_resumed
+):
+    """The module's dataset, interrupted after its first shard and resumed with 2 workers, is the one a single
+    uninterrupted worker writes; another seed gives other data."""
+    run = interrupted_and_resumed
+    assert run["finished_episodes"] == 2
+    assert run["plain_code"] == 2, "an interrupted output must not be overwritten silently"
+    assert run["resumed_code"] == 0
+    fresh = tmp_path / "fresh"
+    assert _generate(fresh, *ARGUMENTS) == 0
 
-    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
-    from lerobot_instant_policy.pseudo_demos.generation import generate_shard, prepare_output, shard_ranges
-
-    arguments = ["--num-tasks", "2", "--demos-per-task", "2", "--seed", "7", "--tasks-per-shard", "1"]
-    fresh, resumed = tmp_path / "fresh", tmp_path / "resumed"
-    assert _generate(fresh, *arguments) == 0
-
-    config = config_from_args(build_parser().parse_args(["--out", str(resumed), "--repo-id", REPO_ID, *arguments]))
-    prepare_output(config, overwrite=False, resume=False)
-    finished = generate_shard(config, 0, shard_ranges(config)[0])
-    (resumed / ".shards" / "shard-00001.tmp" / "data").mkdir(parents=True)
-    assert LeRobotDataset(f"{REPO_ID}-shard-00000", root=finished).meta.total_episodes == 2
-    assert _generate(resumed, *arguments) == 2, "an interrupted output must not be overwritten silently"
-    assert _generate(resumed, *arguments, "--workers", "2", "--resume") == 0
-
-    left, right = _table(fresh), _table(resumed)
+    left, right = _table(fresh), _table(run["out"])
     for column in left:
         np.testing.assert_array_equal(left[column], right[column])
-    other_seed = _table(dataset_dir)  # seed 0
+    other = tmp_path / "other_seed"
+    assert _generate(other, "--num-tasks", "1", "--demos-per-task", "1", "--seed", "12") == 0
+    other_seed = _table(other)
     assert not np.array_equal(other_seed["observation.state"][:10], left["observation.state"][:10])
 
 
@@ -223,11 +253,11 @@ def test_a_ladder_rung_with_object_groups(tmp_path):
     from lerobot.datasets import LeRobotDataset
 
     out = tmp_path / "reach"
-    assert _generate(out, "--family", "reach", "--tasks-per-object-group", "2", "--num-tasks", "3",
-                     "--demos-per-task", "2", "--seed", "4") == 0
+    assert _generate(out, "--family", "reach", "--tasks-per-object-group", "2", "--num-tasks", "2",
+                     "--demos-per-task", "2", "--seed", "4", "--config", _cheap_clouds(tmp_path)) == 0
     tasks = [json.loads(line) for line in (out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()]
     scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
-    assert [task["template"] for task in tasks] == ["reach"] * 3
+    assert [task["template"] for task in tasks] == ["reach"] * 2
     assert tasks[0]["object_ids"] == tasks[1]["object_ids"]
     assert tasks[0]["waypoints"] != tasks[1]["waypoints"]
     dataset = LeRobotDataset(REPO_ID, root=out)
@@ -278,14 +308,14 @@ def test_shared_object_layout_places_every_demonstration_of_a_task_alike(tmp_pat
     assert config.demo.shared_layout_fraction == 1.0 and config.plan()["demo"]["shared_layout_fraction"] == 1.0
     out = tmp_path / "shared"
     assert _generate(out, "--family", "reach", "--share-object-layout", "--num-tasks", "2",
-                     "--demos-per-task", "3", "--seed", "6") == 0
+                     "--demos-per-task", "2", "--seed", "6") == 0
     scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
     by_task: dict[str, list[dict]] = {}
     for scene in scenes:
         by_task.setdefault(scene["task"], []).append(scene)
     first, second = by_task.values()
     for demos in (first, second):
-        assert len(demos) == 3
+        assert len(demos) == 2
         for demo in demos[1:]:
             assert demo["T_world_objects"] == demos[0]["T_world_objects"]
             assert demo["T_world_ee_start"] != demos[0]["T_world_ee_start"]
@@ -302,10 +332,10 @@ def test_shared_layout_fraction_mixes_one_layout_and_moved_object_tasks_without_
     are those of the same seed without sharing (the choice has its own random stream). A fraction outside [0, 1] or
     given with --share-object-layout is refused before anything is written."""
     runs = {}
-    for name, fraction in (("mixed", "0.5"), ("moved", "0")):
+    for name, fraction in (("mixed", "0.5"), ("moved", "0")):  # seed 8 at 0.5: task 0 moves, task 1 keeps its layout
         out = tmp_path / name
-        assert _generate(out, "--family", "reach", "--shared-layout-fraction", fraction, "--num-tasks", "6",
-                         "--demos-per-task", "2", "--seed", "8") == 0
+        assert _generate(out, "--family", "reach", "--shared-layout-fraction", fraction, "--num-tasks", "2",
+                         "--demos-per-task", "2", "--seed", "8", "--config", _cheap_clouds(tmp_path)) == 0
         tasks = [json.loads(line) for line in (out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()]
         scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
         runs[name] = tasks, scenes
@@ -340,7 +370,7 @@ def test_layout_shift_moves_the_objects_that_fraction_of_the_way_to_the_independ
     for name, extra in (("shifted", ["--layout-shift", "0.25"]), ("moved", [])):
         out = tmp_path / name
         assert _generate(out, "--family", "reach", "--num-tasks", "4", "--demos-per-task", "2", "--seed", "9",
-                         *extra) == 0
+                         "--config", _cheap_clouds(tmp_path), *extra) == 0
         runs[name] = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
 
     def position_and_yaw(T):
@@ -389,7 +419,7 @@ def test_layout_angle_flags_reach_the_written_scenes(tmp_path):
     so (a resumed run with other angles is refused by the plan check)."""
     out = tmp_path / "aligned"
     assert _generate(out, "--family", "reach", "--num-tasks", "1", "--demos-per-task", "2", "--seed", "4",
-                     "--object-max-yaw-deg", "0", "--start-max-roll-deg", "0") == 0
+                     "--object-max-yaw-deg", "0", "--start-max-roll-deg", "0", "--config", _cheap_clouds(tmp_path)) == 0
     scenes = [json.loads(line) for line in (out / "meta" / "pseudo_demos.jsonl").read_text().splitlines()]
     for scene in scenes:
         np.testing.assert_allclose(np.asarray(scene["T_world_objects"])[:, :3, :3], np.tile(np.eye(3), (2, 1, 1)),
@@ -404,8 +434,8 @@ def test_waypoint_roll_flag_reaches_the_written_tasks(tmp_path):
     """``--waypoint-max-roll-deg 0``: every written task's gripper pose has the reference roll about its approach; the
     plan (which a resumed run must match) records the bound."""
     out = tmp_path / "unturned"
-    assert _generate(out, "--family", "reach_grip", "--num-tasks", "2", "--demos-per-task", "2", "--seed", "4",
-                     "--waypoint-max-roll-deg", "0") == 0
+    assert _generate(out, "--family", "reach_grip", "--num-tasks", "2", "--demos-per-task", "1", "--seed", "4",
+                     "--waypoint-max-roll-deg", "0", "--config", _cheap_clouds(tmp_path)) == 0
     tasks = [json.loads(line) for line in (out / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()]
     assert len(tasks) == 2
     for task in tasks:
@@ -418,19 +448,25 @@ def test_waypoint_roll_flag_reaches_the_written_tasks(tmp_path):
         "waypoint_max_roll_deg"] == 30.0
 
 
-def test_splat_rendering_writes_the_pybullet_datasets_demonstrations(tmp_path, capsys, single_torch_thread):
+def test_splat_rendering_writes_the_pybullet_datasets_demonstrations(
+    tmp_path, capsys, single_torch_thread, dataset_dir
+):
     """``--renderer splat``: the same config writes the same demonstrations (states, actions, task and scene records)
     as with pybullet; only the clouds differ, each of 2048 finite points within a few mm of pybullet's. The plan
-    records the renderer, so a resume with the other one is refused."""
-    arguments = ["--num-tasks", "1", "--demos-per-task", "2", "--seed", "3"]
-    pybullet, splat = tmp_path / "pybullet", tmp_path / "splat"
-    assert _generate(pybullet, *arguments) == 0
+    records the renderer, so a resume with the other one is refused. The pybullet side is the module's dataset's
+    first task (every task is drawn from a random stream of its own, so it is that of a one-task run)."""
+    arguments = ["--num-tasks", "1", "--demos-per-task", "2", "--seed", "37"]
+    splat = tmp_path / "splat"
     assert _generate(splat, *arguments, "--renderer", "splat") == 0
-    left, right = _table(pybullet), _table(splat)
+    module_table = _table(dataset_dir)
+    first_task = module_table["task_index"] == 0
+    left = {column: values[first_task] for column, values in module_table.items()}
+    right = _table(splat)
     for column in ("observation.state", "action", "task_index", "episode_index"):
         np.testing.assert_array_equal(left[column], right[column])
-    for name in ("pseudo_tasks.jsonl", "pseudo_demos.jsonl"):
-        assert (splat / "meta" / name).read_text() == (pybullet / "meta" / name).read_text()
+    for name, lines in (("pseudo_tasks.jsonl", 1), ("pseudo_demos.jsonl", 2)):
+        pybullet_lines = (dataset_dir / "meta" / name).read_text().splitlines(keepends=True)[:lines]
+        assert (splat / "meta" / name).read_text() == "".join(pybullet_lines)
     clouds = right["observation.pointcloud"]
     assert clouds.shape == left["observation.pointcloud"].shape and clouds.shape[1:] == (2048, 3)
     assert clouds.dtype == np.float32 and np.isfinite(clouds).all()
