@@ -75,7 +75,7 @@ class StandingConfig:
     work: str = "outputs/standing"
     out: str | None = None
     start: str | None = None
-    stream_config: str = "configs/generate/stream_bounded.json"
+    stream_config: str = "configs/generate/stream_bounded_mixed.json"
     seed: int = 5000
     device: str = "cpu"
     batch_size: int = 8
