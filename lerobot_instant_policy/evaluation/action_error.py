@@ -125,37 +125,36 @@ def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = No
     rotation = np.concatenate([e["rotation_deg"].ravel() for e in errors])
     gripper = np.concatenate([e["gripper_correct"].ravel() for e in errors])
     first = np.array([e["translation_mm"].reshape(-1)[0] for e in errors])
+    frame_translation = np.array([e["translation_mm"].mean() for e in errors])  # (frames,) each frame's mean
 
-    def sem(key: str) -> float:  # standard error over frames of the per-frame mean (frames are the samples)
-        per_frame = np.array([e[key].mean() for e in errors])
+    def sem(per_frame: np.ndarray) -> float:  # standard error over frames of the per-frame mean (frames: the samples)
         return round(float(per_frame.std(ddof=1) / math.sqrt(len(per_frame))), 3) if len(per_frame) > 1 else 0.0
+
+    def one_per_frame(labels: list[int], what: str) -> np.ndarray:
+        if len(labels) != len(errors):
+            raise ValueError(f"one {what} per frame: {len(labels)} {what}s for {len(errors)} frames")
+        return np.asarray(labels)
 
     summary = {
         "translation_mm": round(float(translation.mean()), 3),
-        "translation_mm_sem": sem("translation_mm"),
+        "translation_mm_sem": sem(frame_translation),
         "translation_mm_first_step": round(float(first.mean()), 3),
         "rotation_deg": round(float(rotation.mean()), 3),
-        "rotation_deg_sem": sem("rotation_deg"),
+        "rotation_deg_sem": sem(np.array([e["rotation_deg"].mean() for e in errors])),
         "gripper_accuracy": round(float(gripper.mean()), 4),
         "frames": len(errors),
         "steps": int(translation.size),
     }
     if phases is not None:
-        if len(phases) != len(errors):
-            raise ValueError(f"one phase per frame: {len(phases)} phases for {len(errors)} frames")
-        per_frame = np.array([e["translation_mm"].mean() for e in errors])
-        phase_of_frame = np.asarray(phases)
+        phase_of_frame = one_per_frame(phases, "phase")
         summary["by_phase"] = {}
         for index, name in enumerate(PHASES):
-            chosen = per_frame[phase_of_frame == index]
+            chosen = frame_translation[phase_of_frame == index]
             summary["by_phase"][name] = {"translation_mm": round(float(chosen.mean()), 3) if chosen.size else None,
                                          "frames": int(chosen.size)}
     if tasks is not None:
-        if len(tasks) != len(errors):
-            raise ValueError(f"one task per frame: {len(tasks)} tasks for {len(errors)} frames")
-        per_frame = np.array([e["translation_mm"].mean() for e in errors])
-        task_of_frame = np.asarray(tasks)
-        summary["translation_mm_by_task"] = [round(float(per_frame[task_of_frame == task].mean()), 3)
+        task_of_frame = one_per_frame(tasks, "task")
+        summary["translation_mm_by_task"] = [round(float(frame_translation[task_of_frame == task].mean()), 3)
                                              for task in range(int(task_of_frame.max()) + 1)]
     return summary
 
