@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from pathlib import Path
 
 import pytest
 import torch
@@ -18,7 +17,6 @@ from lerobot_instant_policy.evaluation.loss_curve import evaluate_loss, load_eva
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 
 SHIPPED = SHIPPED_CHECKPOINT
-CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "generate"
 MAX_BYTES = 50 * 1024**2
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
@@ -54,22 +52,20 @@ def test_the_shipped_model_beats_an_untrained_one_on_held_out_pseudo_tasks(tmp_p
     assert trained.loss < 0.6 * fresh.loss, (trained, fresh)
 
 
-def test_the_shipped_model_reads_its_demonstrations_on_held_out_pseudo_tasks(tmp_path, capsys):
+def test_the_shipped_model_reads_its_demonstrations_on_held_out_pseudo_tasks(held_out_pseudo_tasks, capsys):
     """On fresh pseudo-tasks of the full generator (held-out objects, the curriculum's bounded turns and one layout per
-    task), its actions follow its own demonstrations much better than another task's relabelled as its own (context
-    gain in translation; a network that ignores them scores about 1, the previous checkpoint 1.01) and better than
-    holding still."""
+    task: conftest's ``held_out_pseudo_tasks``, 4 tasks of one object pair, 8 frames of each live episode), its actions
+    follow its own demonstrations much better than another task's relabelled as its own (context gain in translation;
+    a network that ignores them scores about 1) and better than holding still."""
     from lerobot_instant_policy.cli.action_error import main as action_error_main
 
-    assert generate_main(["--config", str(CONFIGS / "rung4_full_shared_bounded_val.json"), "--out", str(tmp_path / "val"),
-                          "--repo-id", "local/val", "--num-tasks", "6", "--seed", "321", "--workers", "1",
-                          "--no-progress"]) == 0
     capsys.readouterr()
-    assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(tmp_path / "val"), "--tasks", "6",
-                              "--frames-per-task", "4", "--K", "4", "--N", "2", "--L", "10", "--no-untrained",
+    assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_pseudo_tasks), "--tasks", "4",
+                              "--frames-per-task", "8", "--K", "4", "--N", "2", "--L", "10", "--no-untrained",
                               "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     own = result["settings"][0]["translation_mm"]
+    assert result["tasks"] == 4 and result["frames"] == 32, result
     assert result["context_gain"]["translation"] > 1.3, result
     assert own < 0.85 * result["hold"]["translation_mm"], result
 

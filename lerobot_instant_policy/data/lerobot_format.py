@@ -57,17 +57,16 @@ def write_episode(dataset, points: np.ndarray, state: np.ndarray, action: np.nda
 
 
 def read_episode(dataset, episode_index: int) -> dict:
-    """One episode of a LeRobotDataset as numpy: ``task``, ``points (F, P, 3)``, ``state (F, 8)``, ``action (F, 8)``."""
-    import torch
-
+    """One episode of a LeRobotDataset as numpy: ``task``, ``points (F, P, 3)``, ``state (F, 8)``, ``action (F, 8)``
+    (float32), its rows read as one numpy slice."""
     episode = dataset.meta.episodes[episode_index]
-    rows = dataset.hf_dataset.select(range(episode["dataset_from_index"], episode["dataset_to_index"]))
-    rows = rows.with_format("torch")
+    columns = [POINTCLOUD_KEY, STATE_KEY, ACTION_KEY]
+    rows = dataset.hf_dataset.with_format("numpy", columns=columns)[
+        episode["dataset_from_index"] : episode["dataset_to_index"]
+    ]
     return {
         "task": episode["tasks"][0],
-        "points": torch.stack(list(rows[POINTCLOUD_KEY])).numpy(),
-        "state": torch.stack(list(rows[STATE_KEY])).numpy(),
-        "action": torch.stack(list(rows[ACTION_KEY])).numpy(),
+        **{name: np.asarray(rows[key], dtype=np.float32) for name, key in zip(("points", "state", "action"), columns)},
     }
 
 

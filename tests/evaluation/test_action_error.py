@@ -1,5 +1,5 @@
-"""``lerobot-ip-action-error``: offline action error of the shipped checkpoint at one setting of K, N and L on a tiny
-held-out pseudo-task dataset (the sweep over several settings is the workbench's, tested in
+"""``lerobot-ip-action-error``: offline action error of the shipped checkpoint at one setting of K, N and L on 2
+held-out pseudo-tasks (the sweep over several settings is the workbench's, tested in
 workbench/tests/test_action_error_sweep.py)."""
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from lerobot_instant_policy.cli.action_error import main as action_error_main
-from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 from lerobot_instant_policy.evaluation import action_error as ae
 from lerobot_instant_policy.evaluation.checkpoints import EvaluationError
@@ -22,11 +21,10 @@ pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def held_out_root(tmp_path_factory):
-    root = tmp_path_factory.mktemp("action_error") / "val"
-    assert generate_main(["--out", str(root), "--repo-id", "local/val", "--num-tasks", "2", "--demos-per-task", "3",
-                          "--seed", "3", "--object-split", "held_out", "--workers", "1", "--no-progress"]) == 0
-    return root
+def held_out_root(held_out_pseudo_tasks):
+    """Held-out pseudo-tasks × 3 demonstrations (conftest's, shared with test_shipped_checkpoint.py); the tests here
+    read their first 2 tasks."""
+    return held_out_pseudo_tasks
 
 
 def _run(root, **overrides):

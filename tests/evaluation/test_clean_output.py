@@ -7,6 +7,8 @@ import logging
 import os
 import subprocess
 
+import pytest
+
 from lerobot_instant_policy import video_backend
 from lerobot_instant_policy.cli import record_demos
 from lerobot_instant_policy.evaluation import suite
@@ -45,9 +47,13 @@ def test_filter_is_installed_once_on_import():
     assert sum(isinstance(f, video_backend.MissingFFmpegFilter) for f in logger.filters) == 1
 
 
+@pytest.mark.slow  # CI: test_eval_suite.py's make demo test asserts the same of its two real lerobot-eval runs
 def test_lerobot_eval_prints_no_traceback(tmp_path):
     """The real ``lerobot-eval --policy.type=demo_replay`` (it opens a LeRobot demo dataset, so LeRobot probes its
-    video backend) on one push_button episode."""
+    video backend) on one push_button episode. Most of its time is a new interpreter importing LeRobot; in CI
+    test_eval_suite.py::test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo checks the output of
+    the two ``lerobot-eval`` processes it runs (``instant_policy`` and this ``demo_replay``, pick_and_lift) for the
+    same: no traceback, and the probe's one line where no system FFmpeg is found."""
     demos = tmp_path / "demos"
     assert record_demos.main(["--task", "push_button", "--episodes", "2", "--out", str(demos),
                               "--repo-id", "local/push_button"]) == 0

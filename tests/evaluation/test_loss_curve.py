@@ -1,6 +1,7 @@
 """The training curve (issue 6): each checkpoint's loss on fixed, seeded frames of the training data and of held-out
 pseudo-tasks, ``lerobot-ip-loss-curve``'s JSON cache and PNG, and its errors. The checkpoints come from a real
-2-step ``lerobot-train`` run on a pseudo-demonstration dataset made by ``lerobot-ip-generate``."""
+2-step ``lerobot-train`` run (LeRobot's ``train``, in this process) on a pseudo-demonstration dataset made by
+``lerobot-ip-generate``."""
 
 from __future__ import annotations
 
@@ -13,7 +14,6 @@ import numpy as np
 import pytest
 import torch
 from synthetic_demos import object_pose, write_demo_dataset
-from test_lerobot_train import run_train
 
 from lerobot_instant_policy.cli.generate import main as generate_main
 from lerobot_instant_policy.cli.loss_curve import main as loss_curve_main
@@ -32,20 +32,46 @@ from lerobot_instant_policy.processor_instant_policy import make_instant_policy_
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
+def train_in_this_process(args: list[str], cwd: Path) -> None:
+    """``lerobot-train ARGS`` as LeRobot's own ``train`` in this process: the checkpoints are the same, without a
+    second interpreter importing LeRobot (the ``lerobot-train`` command itself runs in test_lerobot_train.py). What
+    it sets for the whole process is put back: the root logger's handlers and level, and accelerate's state."""
+    import logging
+    import sys
+
+    from accelerate.state import AcceleratorState
+    from lerobot.scripts.lerobot_train import train
+
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    try:
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(sys, "argv", ["lerobot-train", *args])
+            patch.chdir(cwd)
+            patch.setenv("WANDB_MODE", "disabled")
+            train()
+    finally:
+        root.handlers[:] = handlers
+        root.setLevel(level)
+        AcceleratorState._reset_state(reset_partial_state=True)
+
+
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
+def run(tmp_path_factory, single_torch_thread):
     """``(base, run_dir)``: pseudo-demos at ``base/train`` (2 tasks × 2 demos, training objects) and ``base/val``
-    (1 task × 2 demos, held-out objects), and a lerobot-train run with checkpoints after steps 1 and 2."""
+    (2 tasks × 2 demos, held-out objects), and a lerobot-train run with checkpoints after steps 1 and 2. Reach
+    pseudo-tasks, the ladder's shortest (about 50 frames an episode here, 85 and 144 with the full generator):
+    training and the first evaluation on a dataset encode all its frames; the curve's machinery is alike on any."""
     base = tmp_path_factory.mktemp("loss_curve")
-    common = ["--demos-per-task", "2", "--workers", "1", "--no-progress"]
+    common = ["--demos-per-task", "2", "--family", "reach", "--workers", "1", "--no-progress"]
     assert generate_main(["--out", str(base / "train"), "--repo-id", "local/train", "--num-tasks", "2", "--seed", "0",
                           *common]) == 0
     assert generate_main(["--out", str(base / "val"), "--repo-id", "local/val", "--num-tasks", "2", "--seed", "1",
                           "--object-split", "held_out", *common]) == 0
-    run_train(["--policy.type=instant_policy", "--policy.preset=small", "--dataset.repo_id=local/train",
-               f"--dataset.root={base / 'train'}", "--steps=2", "--batch_size=2", "--policy.device=cpu",
-               f"--output_dir={base / 'run'}", "--save_freq=1", "--log_freq=1", "--wandb.enable=false",
-               "--num_workers=0"], base)
+    train_in_this_process(["--policy.type=instant_policy", "--policy.preset=small", "--dataset.repo_id=local/train",
+                           f"--dataset.root={base / 'train'}", "--steps=2", "--batch_size=2", "--policy.device=cpu",
+                           f"--output_dir={base / 'run'}", "--save_freq=1", "--log_freq=1", "--wandb.enable=false",
+                           "--num_workers=0"], base)
     return base, base / "run"
 
 

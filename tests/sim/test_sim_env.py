@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pybullet
 import pytest
@@ -139,6 +140,8 @@ def test_grasped_block_moves_with_the_gripper():
 
 
 def test_lerobot_env_config_builds_batched_envs():
+    """Both vector envs LeRobot builds: the sync one and the async one (``lerobot-eval``'s default, forkserver worker
+    processes), which reset to the same observations for the same seeds and step alike."""
     from lerobot.envs.utils import env_to_policy_features, preprocess_observation
 
     config = BulletTabletopEnvConfig(task="push_button")
@@ -146,18 +149,25 @@ def test_lerobot_env_config_builds_batched_envs():
     assert features["observation.pointcloud"].shape == (2048, 3)
     assert features["observation.state"].shape == (8,)
     assert features["action"].shape == (8,)
-    vector_env = config.create_envs(n_envs=2, use_async_envs=False)[config.task][0]
-    try:
-        observation, _ = vector_env.reset(seed=[0, 1])
-        batch = preprocess_observation(observation)
-        assert tuple(batch["observation.pointcloud"].shape) == (2, 2048, 3)
-        assert tuple(batch["observation.state"].shape) == (2, 8)
-        assert list(vector_env.call("task_description")) == ["push_button", "push_button"]
-        assert vector_env.call("_max_episode_steps")[0] > 0
-        _, _, _, _, info = vector_env.step(np.stack([observation["agent_pos"][i] for i in range(2)]))
-        assert info["is_success"].shape == (2,)
-    finally:
-        vector_env.close()
+    observed = {}
+    for use_async_envs in (False, True):
+        vector_env = config.create_envs(n_envs=2, use_async_envs=use_async_envs)[config.task][0]
+        try:
+            assert isinstance(vector_env, gym.vector.AsyncVectorEnv) == use_async_envs
+            observation, _ = vector_env.reset(seed=[0, 1])
+            batch = preprocess_observation(observation)
+            assert tuple(batch["observation.pointcloud"].shape) == (2, 2048, 3)
+            assert tuple(batch["observation.state"].shape) == (2, 8)
+            assert list(vector_env.call("task_description")) == ["push_button", "push_button"]
+            assert vector_env.call("_max_episode_steps")[0] > 0
+            stepped, _, _, _, info = vector_env.step(np.stack([observation["agent_pos"][i] for i in range(2)]))
+            assert info["is_success"].shape == (2,)
+            observed[use_async_envs] = (observation, stepped)
+        finally:
+            vector_env.close()
+    for sync, asynchronous in zip(observed[False], observed[True]):
+        for key in ("pointcloud", "agent_pos"):
+            np.testing.assert_allclose(sync[key], asynchronous[key], atol=1e-6)
 
 
 def _drop_after_lift(success: str) -> tuple[bool, bool]:
