@@ -8,14 +8,17 @@ INSTALLED := $(VENV)/.installed
 
 install: $(INSTALLED)
 
+# uv (from PyPI, into the venv) installs from its cache in well under a minute where pip unpacks and byte-compiles
+# torch and its CUDA libraries for about 3 minutes; where uv cannot install (an index only pip's configuration
+# names, say), pip does.
 $(INSTALLED): pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: python3.12 not found (LeRobot 0.6 needs Python 3.12)"; exit 1; }
 	test -x $(VENV)/bin/python || $(PYTHON312) -m venv $(VENV)
-	$(VENV)/bin/pip install --quiet --upgrade pip
-	@echo "installing lerobot-instant-policy and its dependencies (lerobot, torch with its CUDA libraries) into $(VENV)"
-	@$(VENV)/bin/pip cache list pybullet 2>/dev/null | grep -q pybullet || echo "pybullet has no wheel for \
-	Python 3.12, so pip first compiles it from source: about 3-4 minutes on 2 cores, with no output meanwhile \
-	(about 6 minutes for the whole first install here); pip caches the wheel for later installs"
+	$(VENV)/bin/pip install --quiet --upgrade pip 'uv>=0.9,<1'
+	@echo "installing lerobot-instant-policy and its dependencies (lerobot, torch with its CUDA libraries) into $(VENV);\
+	 the first install on a machine downloads them and compiles pybullet and fpsample from source (no wheels for \
+	Python 3.12): several minutes with no output; later installs come from uv's cache in under a minute"
+	$(VENV)/bin/uv pip install --quiet --python $(VENV)/bin/python -e '.[dev]' || \
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(INSTALLED)
 	@echo "installed; $(VENV)/bin holds the lerobot-* and lerobot-ip-* commands"

@@ -298,27 +298,29 @@ def test_compiled_training_step_gives_the_eager_loss_and_gradients(tiny_dataset,
     assert len(calls) == (4 if action_scene_graph else 3)  # sampling did not call the compiled layers
 
 
-def test_compiled_sampling_gives_the_eager_actions():
+# CI: the shipped graph; the paper's with the slow tests
+@pytest.mark.parametrize("action_scene_graph", [pytest.param(True, marks=pytest.mark.slow), False])
+def test_compiled_sampling_gives_the_eager_actions(action_scene_graph):
     """``--policy.compile_inference``: σ, φ and ψ through ``torch.compile`` under ``inference_mode`` predict the eager
-    policy's action chunk (the same weights and DDIM noise), in both graphs; the compiled layers are the ones run."""
-    for action_scene_graph in (True, False):
-        sizes = dict(device="cpu", reencode_action_clouds=False, max_demos=2, hidden_dim=32, num_heads=2,
-                     local_layers=1, context_layers=1, action_layers=1, inference_steps=2,
-                     action_scene_graph=action_scene_graph)
-        eager = InstantPolicyPolicy(InstantPolicyConfig(**sizes)).eval()
-        compiled = InstantPolicyPolicy(InstantPolicyConfig(**sizes, compile_inference=True)).eval()
-        compiled.load_state_dict(eager.state_dict())
-        networks = (compiled.network.local_network, compiled.network.context_network, compiled.network.action_network)
-        calls = []
-        for network in networks:
-            run = network._compiled_dense
-            network._compiled_dense = lambda *args, run=run, network=network: calls.append(network) or run(*args)
-        chunks = []
-        for policy in (eager, compiled):
-            policy.set_demonstrations(lift_demos(2))
-            chunks.append(policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(0)))
-        torch.testing.assert_close(chunks[1], chunks[0], atol=1e-5, rtol=1e-5)
-        assert set(calls) == set(networks)  # σ, φ and ψ all ran compiled
+    policy's action chunk (the same weights and DDIM noise), in the paper's graph and the shipped one; the compiled
+    layers are the ones run."""
+    sizes = dict(device="cpu", reencode_action_clouds=False, max_demos=2, hidden_dim=32, num_heads=2,
+                 local_layers=1, context_layers=1, action_layers=1, inference_steps=2,
+                 action_scene_graph=action_scene_graph)
+    eager = InstantPolicyPolicy(InstantPolicyConfig(**sizes)).eval()
+    compiled = InstantPolicyPolicy(InstantPolicyConfig(**sizes, compile_inference=True)).eval()
+    compiled.load_state_dict(eager.state_dict())
+    networks = (compiled.network.local_network, compiled.network.context_network, compiled.network.action_network)
+    calls = []
+    for network in networks:
+        run = network._compiled_dense
+        network._compiled_dense = lambda *args, run=run, network=network: calls.append(network) or run(*args)
+    chunks = []
+    for policy in (eager, compiled):
+        policy.set_demonstrations(lift_demos(2))
+        chunks.append(policy.predict_action_chunk(live_observation(), generator=torch.Generator().manual_seed(0)))
+    torch.testing.assert_close(chunks[1], chunks[0], atol=1e-5, rtol=1e-5)
+    assert set(calls) == set(networks)  # σ, φ and ψ all ran compiled
 
 
 def test_gripper_flip_probability_changes_the_current_gripper_state(tiny_dataset, monkeypatch):
