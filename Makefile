@@ -8,9 +8,10 @@ INSTALLED := $(VENV)/.installed
 
 install: $(INSTALLED)
 
-# uv (from PyPI, into the venv) installs from its cache in well under a minute where pip unpacks and byte-compiles
-# torch and its CUDA libraries for about 3 minutes; where uv cannot install (an index only pip's configuration
-# names, say), pip does.
+# uv (from PyPI, into the venv) installs from its cache where pip, which may keep no copy of the wheels it downloaded,
+# fetches and unpacks torch and its CUDA libraries again for about 3 minutes; where uv cannot install (an index only
+# pip's configuration names, say), pip does. Byte-compiled at install, as pip does: where PYTHONDONTWRITEBYTECODE is
+# set, an uncompiled venv compiles every module it imports again in every process.
 $(INSTALLED): pyproject.toml
 	@test -n "$(PYTHON312)" || { echo "error: python3.12 not found (LeRobot 0.6 needs Python 3.12)"; exit 1; }
 	test -x $(VENV)/bin/python || $(PYTHON312) -m venv $(VENV)
@@ -18,7 +19,7 @@ $(INSTALLED): pyproject.toml
 	@echo "installing lerobot-instant-policy and its dependencies (lerobot, torch with its CUDA libraries) into $(VENV);\
 	 the first install on a machine downloads them and compiles pybullet and fpsample from source (no wheels for \
 	Python 3.12): several minutes with no output; later installs come from uv's cache in under a minute"
-	$(VENV)/bin/uv pip install --quiet --python $(VENV)/bin/python -e '.[dev]' || \
+	$(VENV)/bin/uv pip install --quiet --compile-bytecode --python $(VENV)/bin/python -e '.[dev]' || \
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(INSTALLED)
 	@echo "installed; $(VENV)/bin holds the lerobot-* and lerobot-ip-* commands"
