@@ -18,7 +18,7 @@ $(INSTALLED): pyproject.toml
 	$(VENV)/bin/pip install --quiet --upgrade pip 'uv>=0.9,<1'
 	@echo "installing lerobot-instant-policy and its dependencies (lerobot, torch with its CUDA libraries) into $(VENV);\
 	 the first install on a machine downloads them and compiles pybullet and fpsample from source (no wheels for \
-	Python 3.12): several minutes with no output; later installs come from uv's cache in under a minute"
+	Python 3.12): several minutes with no output; later installs come from uv's cache in about a minute"
 	$(VENV)/bin/uv pip install --quiet --compile-bytecode --python $(VENV)/bin/python -e '.[dev]' || \
 	$(VENV)/bin/pip install --quiet -e '.[dev]'
 	touch $(INSTALLED)
