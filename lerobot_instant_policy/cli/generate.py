@@ -21,6 +21,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", help="output directory (the dataset root)")
     parser.add_argument("--repo-id", help="dataset repo id, e.g. local/pseudo_demos")
     parser.add_argument("--num-tasks", type=int, help="number of pseudo-tasks")
+    parser.add_argument("--first-task", type=int,
+                        help="index of the first pseudo-task (default 0): the dataset holds tasks FIRST … FIRST + "
+                             "NUM_TASKS − 1 of the seed, as the pseudo-task stream draws them")
     parser.add_argument("--demos-per-task", type=int, help="demonstrations per pseudo-task")
     parser.add_argument("--workers", type=int, help="parallel worker processes")
     parser.add_argument("--seed", type=int, help="random seed; the same seed gives the same dataset")
@@ -63,6 +66,7 @@ def config_from_args(args: argparse.Namespace) -> GenerationConfig:
         "out": args.out,
         "repo_id": args.repo_id,
         "num_tasks": args.num_tasks,
+        "first_task": args.first_task,
         "demos_per_task": args.demos_per_task,
         "workers": args.workers,
         "seed": args.seed,

@@ -18,6 +18,10 @@ actions, object poses, records), only their clouds differ.
 ``tasks_per_object_group`` G > 1, consecutive groups of G tasks share their two objects (drawn from the stream
 ``(seed, group, 1)``) and differ only in their motions, so a network cannot tell a task from its objects: only the
 demonstrations tell them apart.
+
+A dataset holds tasks ``first_task … first_task + num_tasks − 1`` of its seed (``first_task`` 0 by default): with a
+stream's config and renderer, exactly the tasks that stream draws at those indices, so the tasks a model trained on
+can be written out and evaluated again.
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ class GenerationConfig:
     out: str = "outputs/pseudo_demos"
     repo_id: str = "local/pseudo_demos"
     num_tasks: int = 4
+    first_task: int = 0
     demos_per_task: int = 3
     workers: int = 1
     seed: int = 0
@@ -81,6 +86,8 @@ class GenerationConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.first_task, int) or self.first_task < 0:
+            raise ValueError(f"first_task must be a non-negative integer, got {self.first_task!r}")
         if self.family not in FAMILIES:
             raise ValueError(f"family must be one of {list(FAMILIES)}, got {self.family!r}")
         if not 0.0 <= self.demo.shared_layout_fraction <= 1.0:
@@ -114,6 +121,8 @@ class GenerationConfig:
             plan["demo"].pop("layout_shift")
         if plan["render"]["renderer"] == "pybullet":  # likewise the renderer
             plan["render"].pop("renderer")
+        if plan["first_task"] == 0:  # and the first task index
+            plan.pop("first_task")
         return json.loads(json.dumps(plan))
 
 
@@ -256,9 +265,11 @@ def shard_repo_id(config: GenerationConfig, shard_index: int) -> str:
 
 
 def shard_ranges(config: GenerationConfig) -> list[range]:
+    """The task indices of each shard: ``first_task … first_task + num_tasks − 1``, ``tasks_per_shard`` a shard."""
+    end = config.first_task + config.num_tasks
     return [
-        range(start, min(start + config.tasks_per_shard, config.num_tasks))
-        for start in range(0, config.num_tasks, config.tasks_per_shard)
+        range(start, min(start + config.tasks_per_shard, end))
+        for start in range(config.first_task, end, config.tasks_per_shard)
     ]
 
 

@@ -204,6 +204,7 @@ def test_same_seed_gives_the_same_dataset_also_when_interrupted_and_resumed_with
         (["--num-tasks", "0"], "num_tasks must be a positive integer"),
         (["--demos-per-task", "-2"], "demos_per_task must be a positive integer"),
         (["--workers", "0"], "workers must be a positive integer"),
+        (["--first-task", "-1"], "first_task must be a non-negative integer"),
         (["--objects", "pb/mug", "urdf/1234"], "unknown object id 'urdf/1234'"),
         (["--resume", "--overwrite"], "either --overwrite or --resume"),
         (["--start-max-roll-deg", "-5"], "demo.start_max_roll_deg must lie in [0, 180] degrees, got -5.0"),
@@ -324,6 +325,31 @@ def test_shared_object_layout_places_every_demonstration_of_a_task_alike(tmp_pat
     dataset = LeRobotDataset(REPO_ID, root=out)
     clouds = [read_episode(dataset, index)["points"][0].astype(np.float64) for index in range(2)]
     assert np.median(cKDTree(clouds[0]).query(clouds[1])[0]) < 0.01
+
+
+def test_first_task_writes_the_seeds_tasks_from_that_index(tmp_path):
+    """``--first-task 2 --num-tasks 1`` writes task 2 of the seed: the last task of the same seed's three-task dataset
+    (its record, name and demonstrations), as the pseudo-task stream draws it at index 2."""
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_instant_policy.cli.generate import build_parser, config_from_args
+    from lerobot_instant_policy.pseudo_demos.generation import plan_task
+
+    common = ("--family", "reach", "--demos-per-task", "2", "--seed", "6", "--config", _cheap_clouds(tmp_path))
+    assert _generate(tmp_path / "all", "--num-tasks", "3", *common) == 0
+    assert _generate(tmp_path / "third", "--first-task", "2", "--num-tasks", "1", *common) == 0
+    records = {name: (tmp_path / name / "meta" / "pseudo_tasks.jsonl").read_text().splitlines()
+               for name in ("all", "third")}
+    assert records["third"] == records["all"][2:]
+    assert json.loads(records["third"][0])["task"] == "pseudo-s6-000002"
+    whole, third = (LeRobotDataset(REPO_ID, root=tmp_path / name) for name in ("all", "third"))
+    planned = plan_task(config_from_args(build_parser().parse_args(list(common))), 2)
+    for demo in range(2):
+        episode, expected = read_episode(third, demo), read_episode(whole, 4 + demo)
+        assert episode["task"] == expected["task"] == "pseudo-s6-000002"
+        np.testing.assert_array_equal(episode["state"], expected["state"])
+        np.testing.assert_array_equal(episode["points"], expected["points"])
+        np.testing.assert_allclose(episode["action"], planned.demos[demo].action, rtol=0, atol=1e-6)
 
 
 def test_shared_layout_fraction_mixes_one_layout_and_moved_object_tasks_without_changing_the_tasks(tmp_path, capsys):
