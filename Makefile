@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-suite-instant results-study eval-suite perception-eval eval-metaworld test install clean
+.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-suite-instant results-study eval-suite perception-eval eval-metaworld results-candidate test install clean
 
 install: $(INSTALLED)
 
@@ -230,6 +230,29 @@ eval-metaworld: $(INSTALLED) gl-library
 	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,$(METAWORLD_COLUMNS),$(run)=$(METAWORLD_OUT)/runs/$(run)) \
 		--env-type metaworld_pointcloud --paired instant_policy=demo_replay --paired instant_policy=instant_policy-swap \
 		--paired demo_replay=demo_replay-swap --out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)
+
+# Step 5 of the standing training (docs/training.md): a candidate checkpoint, by default the standing run's best
+# save, on the test split of the suite and of MetaWorld MT10. Only its column is evaluated: it is joined to the
+# committed tables' columns through their manifests (the same cells, seeds and demonstration sets, checked) and
+# paired with the shipped checkpoint and demo_replay (the suite's per-object one too). The candidate loads another
+# checkpoint than the shipped column (--allow-difference checkpoint); the replay columns differ in their options.
+# SUITE_ARGS=--resume continues an interrupted run.
+CANDIDATE ?= checkpoints/stream/best/pretrained_model
+CANDIDATE_NAME ?= standing_best
+SUITE_TABLE := docs/results_suite_$(SPLIT).manifest.json
+METAWORLD_TABLE := docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT).manifest.json
+results-candidate: $(INSTALLED) gl-library
+	$(SUITE) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
+	$(VENV)/bin/lerobot-ip-eval-table $(CANDIDATE_NAME)=$(SUITE_OUT)/runs/$(CANDIDATE_NAME) \
+		$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_TABLE)) \
+		--allow-difference checkpoint --allow-difference policy_options --paired $(CANDIDATE_NAME)=instant_policy \
+		--paired $(CANDIDATE_NAME)=demo_replay_per_object --paired $(CANDIDATE_NAME)=demo_replay \
+		--out docs/results_suite_$(SPLIT)_$(CANDIDATE_NAME)
+	$(METAWORLD) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
+	$(VENV)/bin/lerobot-ip-eval-table $(CANDIDATE_NAME)=$(METAWORLD_OUT)/runs/$(CANDIDATE_NAME) \
+		$(foreach run,instant_policy demo_replay,$(run)=$(METAWORLD_TABLE)) --env-type metaworld_pointcloud \
+		--allow-difference checkpoint --paired $(CANDIDATE_NAME)=instant_policy --paired $(CANDIDATE_NAME)=demo_replay \
+		--out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME)
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)
