@@ -242,6 +242,8 @@ CANDIDATE_NAME ?= standing_best
 SUITE_TABLE := docs/results_suite_$(SPLIT).manifest.json
 METAWORLD_TABLE := docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT).manifest.json
 results-candidate: $(INSTALLED) gl-library
+	@ldconfig -p | grep -q libOSMesa || { echo "error: MuJoCo renders with OSMesa here (MUJOCO_GL=osmesa): install \
+	Debian's libosmesa6 (apt-get install libosmesa6, as root)"; exit 1; }
 	$(SUITE) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
 	$(VENV)/bin/lerobot-ip-eval-table $(CANDIDATE_NAME)=$(SUITE_OUT)/runs/$(CANDIDATE_NAME) \
 		$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_TABLE)) \
