@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-suite-instant results-study eval-suite perception-eval eval-metaworld results-candidate test install clean
+.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-suite-instant results-study eval-suite perception-eval eval-metaworld osmesa results-candidate test install clean
 
 install: $(INSTALLED)
 
@@ -218,9 +218,12 @@ METAWORLD = MUJOCO_GL=osmesa OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-metaw
 	--episodes $(METAWORLD_EPISODES) --demo-sets $(METAWORLD_SETS) --split $(SPLIT) --out $(METAWORLD_OUT) \
 	--env-arg render_size=64 $(SUITE_ARGS)
 METAWORLD_COLUMNS = metaworld_expert do_nothing demo_replay demo_replay-swap instant_policy instant_policy-swap
-eval-metaworld: $(INSTALLED) gl-library
+# The MetaWorld evaluations stop at once where gl-library could not install the OSMesa library.
+osmesa: gl-library
 	@ldconfig -p | grep -q libOSMesa || { echo "error: MuJoCo renders with OSMesa here (MUJOCO_GL=osmesa): install \
 	Debian's libosmesa6 (apt-get install libosmesa6, as root)"; exit 1; }
+
+eval-metaworld: $(INSTALLED) osmesa
 	$(METAWORLD) $(IP)
 	$(METAWORLD) --policy demo_replay
 	$(METAWORLD) $(IP) --swap
@@ -241,9 +244,7 @@ CANDIDATE ?= checkpoints/stream/best/pretrained_model
 CANDIDATE_NAME ?= standing_best
 SUITE_TABLE := docs/results_suite_$(SPLIT).manifest.json
 METAWORLD_TABLE := docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT).manifest.json
-results-candidate: $(INSTALLED) gl-library
-	@ldconfig -p | grep -q libOSMesa || { echo "error: MuJoCo renders with OSMesa here (MUJOCO_GL=osmesa): install \
-	Debian's libosmesa6 (apt-get install libosmesa6, as root)"; exit 1; }
+results-candidate: $(INSTALLED) osmesa
 	$(SUITE) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
 	$(VENV)/bin/lerobot-ip-eval-table $(CANDIDATE_NAME)=$(SUITE_OUT)/runs/$(CANDIDATE_NAME) \
 		$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_TABLE)) \
