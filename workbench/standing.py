@@ -24,7 +24,11 @@ run's new start, the best save kept apart for shipping, and a point on the scali
    ``standing.json`` in the save holds every run so far: samples and distinct tasks (this run's and in all), the
    pool's rates and uses per task, the figures with their intervals, the per-task errors behind them and, once a
    best is kept, the paired difference from the best on each set (``against_best``), so a reader can tell a real
-   change from the noise of a few validation tasks.
+   change from the noise of a few validation tasks;
+5. compares the save with the shipped checkpoint the same way (``against_shipped``: :func:`shipped_validation`
+   validates the shipped checkpoint once on the same frames and caches its errors in ``shipped.json`` beside the
+   saves) and records whether the best save now beats the shipped checkpoint on both sets (``best_beats_shipped``):
+   the condition for step 5 of docs/training.md, the suite and MetaWorld's test splits (``make results-candidate``).
 
 With ``--out`` the save and its record are packed into ``OUT`` instead (``save.tar`` and ``standing.json``, two
 files), for ``accept`` to keep here.
@@ -32,6 +36,7 @@ files), for ``accept`` to keep here.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -44,6 +49,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionErrorError, paired_ratio_difference
+from lerobot_instant_policy.evaluation.manifest import checkpoint_fingerprint
 
 from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
 
@@ -56,6 +62,7 @@ VALIDATION_CONFIGS = {
     "one_layout": "configs/generate/rung4_full_shared_bounded_val.json",
 }
 RECORD = "standing.json"
+SHIPPED_RECORD = "shipped.json"
 SAVE_TAR = "save.tar"
 POOL_STATE = "training_state/task_pool.json"  # written after the rest of a save: its presence marks a complete one
 MODEL_DIR, STATE_DIR = "pretrained_model", "training_state"
@@ -220,6 +227,29 @@ def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
     return results
 
 
+def shipped_validation(config: StandingConfig, root: Path, standing: Path = STANDING) -> dict:
+    """The shipped checkpoint on both validation sets under ``root``, as a run's record holds a save's figures
+    (``validation``: set → :func:`figures`; ``validation_per_task``: set → :func:`per_task`), with the ``key`` it was
+    validated under: the SHA-256 of the checkpoint's files and of the sets' presets, the validation's size, setting
+    and device. Cached in ``standing/shipped.json`` and validated again only when the key changes."""
+    key = {"checkpoint_sha256": checkpoint_fingerprint(SHIPPED),
+           "presets_sha256": {name: hashlib.sha256(Path(preset).read_bytes()).hexdigest()
+                              for name, preset in VALIDATION_CONFIGS.items()},
+           "val_tasks": config.val_tasks, "val_frames_per_task": config.val_frames_per_task,
+           "setting": {"K": EVAL_K, "N": EVAL_N, "L": EVAL_L}, "device": config.device}
+    cache = standing / SHIPPED_RECORD
+    if cache.is_file():
+        cached = json.loads(cache.read_text())
+        if cached.get("key") == key:
+            return cached
+    results = validate(config, SHIPPED, root)
+    record = {"key": key, "validation": {name: figures(result) for name, result in results.items()},
+              "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+    standing.mkdir(parents=True, exist_ok=True)
+    cache.write_text(json.dumps(record, indent=2))
+    return record
+
+
 # ---------------------------------------------------------------------------------------------------- one run
 def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
     """One run (module docstring); returns its record (what the save's ``standing.json`` holds, last run last)."""
@@ -268,6 +298,10 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         "validation_per_task": {name: per_task(result) for name, result in results.items()}, "config": asdict(config),
         "hidden_dim": json.loads((save / MODEL_DIR / "config.json").read_text())["hidden_dim"],
     }
+    try:
+        entry["against_shipped"] = paired_against(entry, shipped_validation(config, work / "validation", standing))
+    except (StandingError, FileNotFoundError) as error:  # the save is kept all the same, with the reason
+        entry["against_shipped"] = {name: {"not_compared": str(error)} for name in VALIDATION_CONFIGS}
     record = {"runs": [*previous["runs"], entry]}
     (save / RECORD).write_text(json.dumps(record, indent=2))
     if config.out:
@@ -291,20 +325,36 @@ def beats(validation: dict, best: dict | None) -> bool:
                                for name in VALIDATION_CONFIGS)
 
 
-def against_best(entry: dict, best: dict) -> dict:
-    """The paired difference, this run − the best, of the error over holding still's and of the context gain on each
-    validation set (:func:`~lerobot_instant_policy.evaluation.action_error.paired_ratio_difference` of the two runs'
-    ``validation_per_task``; ``entry``, ``best``: runs of a record; in each ratio ``a`` is this run's, ``b`` the
-    best's), with the best's end step and samples. A set where the two cannot be paired (the best's record is older
-    than its per-task errors, other frames) holds ``{"not_compared": why}``."""
-    comparison = {"best_end_step": best["end_step"], "best_samples_total": best["samples_total"]}
+def paired_against(entry: dict, other: dict) -> dict:
+    """The paired difference, ``entry`` − ``other``, of the error over holding still's and of the context gain on each
+    validation set (:func:`~lerobot_instant_policy.evaluation.action_error.paired_ratio_difference` of their
+    ``validation_per_task``; in each ratio ``a`` is ``entry``'s, ``b`` ``other``'s). A set where the two cannot be
+    paired (a record older than its per-task errors, other frames) holds ``{"not_compared": why}``."""
+    comparison = {}
     for name in VALIDATION_CONFIGS:
         try:
             comparison[name] = paired_ratio_difference(entry.get("validation_per_task", {}).get(name, {}),
-                                                       best.get("validation_per_task", {}).get(name, {}))
+                                                       other.get("validation_per_task", {}).get(name, {}))
         except ActionErrorError as error:
             comparison[name] = {"not_compared": str(error)}
     return comparison
+
+
+def against_best(entry: dict, best: dict) -> dict:
+    """:func:`paired_against` the best (``entry``, ``best``: runs of a record), with the best's end step and
+    samples."""
+    return {"best_end_step": best["end_step"], "best_samples_total": best["samples_total"],
+            **paired_against(entry, best)}
+
+
+def beats_shipped(entry: dict | None) -> bool | None:
+    """Whether a run's save is closer than the shipped checkpoint to the actions on both sets, relative to holding
+    still (the point estimates of its ``against_shipped``, the rule :func:`beats` applies to the best); None where a
+    set was not compared."""
+    comparison = (entry or {}).get("against_shipped", {})
+    differences = [comparison.get(name, {}).get("vs_holding_still", {}).get("difference")
+                   for name in VALIDATION_CONFIGS]
+    return None if None in differences else all(difference < 0 for difference in differences)
 
 
 def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
@@ -312,13 +362,17 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     save, its weights the best when they beat the best on both sets, and add its point to the curve. Where a best is
     kept already, the run's record in the last save (and in the best, when it becomes the best) also holds
     ``against_best`` (:func:`against_best`: the paired difference from the previous best, whatever the rule
-    decides). Returns ``best`` (kept as the best), the curve's ``point`` and ``against_best`` (None without a best)."""
+    decides), and ``best_beats_shipped`` (:func:`beats_shipped` of the best after this run: step 5 is due when
+    true). Returns ``best`` (kept as the best), the curve's ``point``, ``against_best`` (None without a best) and
+    ``best_beats_shipped``."""
     record = read_record(save)
     entry = record["runs"][-1]
     last, best = standing / "last", standing / "best"
     previous_best = read_record(best)["runs"][-1] if (best / RECORD).is_file() else None
     if previous_best is not None:
         entry["against_best"] = against_best(entry, previous_best)
+    kept = beats(entry["validation"], previous_best["validation"] if previous_best is not None else None)
+    entry["best_beats_shipped"] = beats_shipped(entry if kept else previous_best)
     staging = standing / ".last-new"
     shutil.rmtree(staging, ignore_errors=True)
     for part in (MODEL_DIR, STATE_DIR):
@@ -326,7 +380,6 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     (staging / RECORD).write_text(json.dumps(record, indent=2))
     shutil.rmtree(last, ignore_errors=True)
     staging.rename(last)  # the old last save stays whole until the new one is complete
-    kept = beats(entry["validation"], previous_best["validation"] if previous_best is not None else None)
     if kept:
         shutil.rmtree(best, ignore_errors=True)
         shutil.copytree(save / MODEL_DIR, best / MODEL_DIR)
@@ -336,7 +389,8 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
                         kept, f"standing run from step {entry['start_step']} to {entry['end_step']}, "
                               f"{entry['started']}, {entry['device']}")
     add_curve_point(point, curve_file)
-    return {"best": kept, "point": point, "against_best": entry.get("against_best")}
+    return {"best": kept, "point": point, "against_best": entry.get("against_best"),
+            "best_beats_shipped": entry["best_beats_shipped"]}
 
 
 def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:

@@ -55,6 +55,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(result, indent=2))
+    if result.get("best_beats_shipped"):
+        print(f"{PROG}: the best save beats the shipped checkpoint on both sets: step 5 is due "
+              "(make results-candidate, docs/training.md)", file=sys.stderr)
     return 0
 
 

@@ -1,7 +1,8 @@
 """The standing training run (``workbench.standing``): which save a run continues, which saves count as complete,
 the last save always replaced, the best only when it beats the best on both sets, a point on the curve per run (with
 the figures' intervals where the run has them), the paired difference from the best recorded where the best's
-per-task errors are kept, a device's packed save kept the same way, and bad settings refused."""
+per-task errors are kept, the comparison with the shipped checkpoint (validated once, cached) deciding whether step 5
+is due, a device's packed save kept the same way, and bad settings refused."""
 
 from __future__ import annotations
 
@@ -11,18 +12,22 @@ from pathlib import Path
 
 import pytest
 
+import workbench.standing as standing_module
 from lerobot_instant_policy.evaluation.action_error import task_intervals
 from workbench.standing import (
     RECORD,
     SAVE_TAR,
+    SHIPPED_RECORD,
     StandingConfig,
     accept,
     complete_saves,
     figures,
     keep,
+    paired_against,
     per_task,
     plot_curve,
     read_record,
+    shipped_validation,
     start_save,
     train_command,
 )
@@ -192,3 +197,56 @@ def test_the_paired_difference_from_the_best_is_recorded_where_the_best_kept_its
     assert recorded["moved"]["context_gain_translation"]["difference"] == pytest.approx(0.0, abs=1e-3)
     # the best's own record is left as it was when it was kept
     assert read_record(standing / "best")["runs"][-1]["end_step"] == 200
+
+
+def _shipped(moved: float, one_layout: float) -> dict:
+    """The shipped checkpoint's validation as :func:`shipped_validation` returns it."""
+    results = {"moved": _action_error(moved), "one_layout": _action_error(one_layout)}
+    return {"validation": {name: figures(result) for name, result in results.items()},
+            "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+
+
+def _compared(moved: float, one_layout: float, samples_total: int, shipped: dict) -> dict:
+    entry = _entry(moved, one_layout, samples_total, per_task_kept=True)
+    return {**entry, "against_shipped": paired_against(entry, shipped)}
+
+
+def test_step_5_is_due_once_the_best_save_beats_the_shipped_checkpoint_on_both_sets(tmp_path):
+    run, standing, curve = tmp_path / "run", tmp_path / "standing", tmp_path / "curve.json"
+    shipped = _shipped(0.9, 0.6)
+    unknown = keep(_save(run, 100, [_entry(0.95, 0.65, 800, per_task_kept=True)]), standing, curve)
+    assert unknown["best"] and unknown["best_beats_shipped"] is None  # never compared with the shipped checkpoint
+    first = keep(_save(run, 200, [_compared(0.8, 0.62, 1600, shipped)]), standing, curve)
+    assert first["best"] and first["best_beats_shipped"] is False  # closer on moved objects only
+    against = read_record(standing / "last")["runs"][-1]["against_shipped"]
+    assert against["moved"]["vs_holding_still"]["difference"] == pytest.approx(-0.1, abs=1e-3)
+    assert against["one_layout"]["vs_holding_still"]["difference"] == pytest.approx(0.02, abs=1e-3)
+    # beats the shipped checkpoint on both sets but not the best on moved objects: the best, and so the answer, stay
+    second = keep(_save(run, 300, [_compared(0.85, 0.58, 2400, shipped)]), standing, curve)
+    assert not second["best"] and second["best_beats_shipped"] is False
+    third = keep(_save(run, 400, [_compared(0.78, 0.55, 3200, shipped)]), standing, curve)
+    assert third["best"] and third["best_beats_shipped"] is True
+    assert read_record(standing / "best")["runs"][-1]["best_beats_shipped"] is True
+    # a later run that is not kept leaves the answer with the best that is
+    fourth = keep(_save(run, 500, [_compared(0.95, 0.7, 4000, shipped)]), standing, curve)
+    assert not fourth["best"] and fourth["best_beats_shipped"] is True
+
+
+def test_the_shipped_checkpoint_is_validated_once_and_again_only_when_its_key_changes(tmp_path, monkeypatch):
+    calls = []
+
+    def validate(config, checkpoint, root):
+        calls.append((checkpoint, config.val_tasks))
+        return {"moved": _action_error(0.9), "one_layout": _action_error(0.6)}
+
+    monkeypatch.setattr(standing_module, "validate", validate)
+    config = StandingConfig()
+    first = shipped_validation(config, tmp_path / "validation", tmp_path / "standing")
+    assert calls == [(standing_module.SHIPPED, 24)]
+    assert first["validation"]["moved"] == figures(_action_error(0.9))
+    assert first["key"]["checkpoint_sha256"] and set(first["key"]["presets_sha256"]) == {"moved", "one_layout"}
+    again = shipped_validation(config, tmp_path / "validation", tmp_path / "standing")
+    assert again == first and len(calls) == 1  # read from shipped.json
+    shipped_validation(StandingConfig(val_tasks=12), tmp_path / "validation", tmp_path / "standing")
+    assert calls[-1] == (standing_module.SHIPPED, 12)  # another validation size: validated again
+    assert json.loads((tmp_path / "standing" / SHIPPED_RECORD).read_text())["key"]["val_tasks"] == 12
