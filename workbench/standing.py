@@ -463,3 +463,45 @@ def _groups(points: list[dict]) -> dict[tuple[str, int], list[dict]]:
     for point in points:
         groups.setdefault((point["device"], point["hidden_dim"]), []).append(point)
     return groups
+
+
+TREND_FIGURES = {"vs_holding_still": 0.5, "context_gain": 2.0}  # the issue's aim on fresh moved-object tasks
+
+
+def trend(points: list[dict], min_samples: int = 1, targets: dict[str, float] = TREND_FIGURES) -> dict:
+    """What the curve predicts: for each set and figure (``<set>_<figure>``, ``targets``: figure → the value aimed
+    at), the least-squares line y = a + b·log10(samples) through the points with at least ``min_samples``, its slope
+    per tenfold samples with a 95% interval (Student's t over n − 2 degrees of freedom), and the samples at which the
+    line reaches the target: ``samples_at_target`` from the fitted slope (None where it does not lead towards the
+    target: no crossing is predicted) and ``samples_at_target_interval`` ``[nearest, farthest]`` from the slope's
+    bounds through the points' centroid (``farthest`` None, unbounded, where the slope's interval reaches a flat or
+    wrong-way slope; both None where the whole interval does). ``ValueError`` with fewer than three points."""
+    import numpy as np
+    from scipy import stats
+
+    chosen = sorted((point for point in points if point["samples_total"] >= min_samples),
+                    key=lambda point: point["samples_total"])
+    if len(chosen) < 3:
+        raise ValueError(f"a trend needs at least 3 points with ≥ {min_samples} samples, the curve has {len(chosen)}")
+    x = np.log10([point["samples_total"] for point in chosen])
+    result = {"points": len(chosen), "samples": [chosen[0]["samples_total"], chosen[-1]["samples_total"]]}
+    for name in VALIDATION_CONFIGS:
+        for figure, target in targets.items():
+            y = np.array([point[f"{name}_{figure}"] for point in chosen])
+            fit = stats.linregress(x, y)
+            half = stats.t.ppf(0.975, len(chosen) - 2) * fit.stderr
+            slopes = (fit.slope - half, fit.slope + half)
+
+            def crossing(slope: float) -> float | None:
+                towards = (target - y.mean()) * slope > 0
+                return round(float(10 ** (x.mean() + (target - y.mean()) / slope))) if towards else None
+
+            crossings = sorted(value for value in map(crossing, slopes) if value is not None)
+            result[f"{name}_{figure}"] = {
+                "target": target, "slope_per_decade": round(float(fit.slope), 4),
+                "slope_interval": [round(float(slope), 4) for slope in slopes],
+                "at_last_point": round(float(fit.intercept + fit.slope * x[-1]), 4),
+                "samples_at_target": crossing(fit.slope),
+                "samples_at_target_interval": [crossings[0] if crossings else None,
+                                               crossings[1] if len(crossings) == 2 else None]}
+    return result

@@ -3,6 +3,7 @@
   run --hours 2.5                                   (here: continue checkpoints/stream/last on the CPU pool, nice)
   run --device cuda --generators 14 --batch-size 64 --deadline-s 540 --validate-s 150 --out $OUT   (a GPU lease)
   accept FOLDER                                     (here: keep what a lease brought back)
+  trend --min-samples 140000                        (what the curve predicts, from its points since a recipe began)
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, run
+from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, run, trend
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,6 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")
     brought = commands.add_parser("accept", help="keep a run brought back from a device (save.tar, standing.json)")
     brought.add_argument("folder", type=Path)
+    predicted = commands.add_parser("trend", help="fit each figure against log samples, say where it meets the aim")
+    predicted.add_argument("--min-samples", type=int, default=1,
+                           help="fit only the points with at least these samples (one recipe's points)")
     return parser
 
 
@@ -45,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "accept":
             result = accept(args.folder, args.standing, args.curve)
+        elif args.command == "trend":
+            result = trend(json.loads(args.curve.read_text())["points"], args.min_samples)
         else:
             options = {key: value for key, value in vars(args).items()
                        if key not in ("command", "hours", "standing", "curve")}

@@ -2,7 +2,7 @@
 the last save always replaced, the best only when it beats the best on both sets, a point on the curve per run (with
 the figures' intervals where the run has them), the paired difference from the best recorded where the best's
 per-task errors are kept, the comparison with the shipped checkpoint (validated once, cached) deciding whether step 5
-is due, a device's packed save kept the same way, and bad settings refused."""
+is due, a device's packed save kept the same way, what the curve predicts, and bad settings refused."""
 
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ from workbench.standing import (
     shipped_validation,
     start_save,
     train_command,
+    trend,
 )
 
 HOLD_MM = [25.0, 30.0, 35.0, 28.0, 32.0, 30.0]
@@ -250,3 +251,35 @@ def test_the_shipped_checkpoint_is_validated_once_and_again_only_when_its_key_ch
     shipped_validation(StandingConfig(val_tasks=12), tmp_path / "validation", tmp_path / "standing")
     assert calls[-1] == (standing_module.SHIPPED, 12)  # another validation size: validated again
     assert json.loads((tmp_path / "standing" / SHIPPED_RECORD).read_text())["key"]["val_tasks"] == 12
+
+
+def _point(samples: int, moved: float, one_layout: float) -> dict:
+    return {"samples_total": samples, "moved_vs_holding_still": moved, "moved_context_gain": 1.3,
+            "one_layout_vs_holding_still": one_layout, "one_layout_context_gain": 1.3 + (1 - one_layout)}
+
+
+def test_the_trend_says_at_what_scale_each_figure_meets_its_aim_and_where_none_is_predicted(tmp_path, capsys):
+    # moved objects fall 0.1 a tenfold from 0.9 at 10^4 samples: 0.5 at 10^8; one layout wobbles about 0.6 (noisy)
+    points = [_point(10 ** k, 1.3 - 0.1 * k, 0.6 + 0.02 * (-1) ** k) for k in range(4, 8)]
+    points.append(_point(100, 0.2, 0.2))  # an earlier recipe's point, left out by min_samples
+    result = trend(points, min_samples=10_000)
+    assert result["points"] == 4 and result["samples"] == [10_000, 10_000_000]
+    moved = result["moved_vs_holding_still"]
+    assert moved["slope_per_decade"] == pytest.approx(-0.1) and moved["at_last_point"] == pytest.approx(0.6)
+    assert moved["samples_at_target"] == pytest.approx(1e8, rel=1e-6)  # an exact line: the interval closes on it
+    assert moved["samples_at_target_interval"] == [pytest.approx(1e8, rel=1e-6)] * 2
+    layout = result["one_layout_vs_holding_still"]
+    low, high = layout["slope_interval"]
+    assert low < 0 < high  # no trend: the slope's interval holds flat, so the far end is unbounded
+    assert layout["samples_at_target_interval"][1] is None
+    gain = result["moved_context_gain"]  # flat at 1.3: it never reaches 2
+    assert gain["slope_per_decade"] == pytest.approx(0.0, abs=1e-9) and gain["samples_at_target"] is None
+    with pytest.raises(ValueError, match="at least 3 points"):
+        trend(points, min_samples=10 ** 6)
+    # the command line reads the curve's file
+    from workbench.cli.standing import main
+
+    curve = tmp_path / "curve.json"
+    curve.write_text(json.dumps({"points": points}))
+    assert main(["--curve", str(curve), "trend", "--min-samples", "10000"]) == 0
+    assert json.loads(capsys.readouterr().out)["moved_vs_holding_still"]["target"] == 0.5
