@@ -239,23 +239,41 @@ eval-metaworld: $(INSTALLED) osmesa
 # committed tables' columns through their manifests (the same cells, seeds and demonstration sets, checked) and
 # paired with the shipped checkpoint and demo_replay (the suite's per-object one too). The candidate loads another
 # checkpoint than the shipped column (--allow-difference checkpoint); the replay columns differ in their options.
+# A demonstration set recorded here with other bytes than the committed column's (pybullet on another CPU: 7 of the
+# suite's 36 sets on 2026-11-27) would pair other demonstrations: the committed columns' tasks with such a set are
+# evaluated again here (runs redo-<column>) and amend those columns before the join.
 # SUITE_ARGS=--resume continues an interrupted run.
 CANDIDATE ?= checkpoints/stream/best/pretrained_model
 CANDIDATE_NAME ?= standing_best
 SUITE_TABLE := docs/results_suite_$(SPLIT).manifest.json
 METAWORLD_TABLE := docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT).manifest.json
+SUITE_JOIN = $(CANDIDATE_NAME)=$(SUITE_OUT)/runs/$(CANDIDATE_NAME) \
+	$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_TABLE))
+METAWORLD_JOIN = $(CANDIDATE_NAME)=$(METAWORLD_OUT)/runs/$(CANDIDATE_NAME) \
+	$(foreach run,instant_policy demo_replay,$(run)=$(METAWORLD_TABLE)) --env-type metaworld_pointcloud
 results-candidate: $(INSTALLED) osmesa
 	$(SUITE) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
-	$(VENV)/bin/lerobot-ip-eval-table $(CANDIDATE_NAME)=$(SUITE_OUT)/runs/$(CANDIDATE_NAME) \
-		$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_TABLE)) \
+	redo=$$($(VENV)/bin/lerobot-ip-eval-table $(SUITE_JOIN) --recorded-differently) || exit 1; amend=; \
+	if [ -n "$$redo" ]; then echo "recorded here with other bytes: $$redo; the committed columns evaluate them again"; \
+	rm -rf $(foreach run,instant_policy demo_replay_per_object demo_replay,$(SUITE_OUT)/runs/redo-$(run)); \
+	$(SUITE) $(IP) --tasks $$redo --run-name redo-instant_policy && \
+	$(SUITE) $(PER_OBJECT) --tasks $$redo --run-name redo-demo_replay_per_object && \
+	$(SUITE) --policy demo_replay --tasks $$redo --run-name redo-demo_replay || exit 1; \
+	amend="$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_OUT)/runs/redo-$(run))"; fi; \
+	$(VENV)/bin/lerobot-ip-eval-table $(SUITE_JOIN) $$amend \
 		--allow-difference checkpoint --allow-difference policy_options --paired $(CANDIDATE_NAME)=instant_policy \
 		--paired $(CANDIDATE_NAME)=demo_replay_per_object --paired $(CANDIDATE_NAME)=demo_replay \
 		--out docs/results_suite_$(SPLIT)_$(CANDIDATE_NAME)
 	$(METAWORLD) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
-	$(VENV)/bin/lerobot-ip-eval-table $(CANDIDATE_NAME)=$(METAWORLD_OUT)/runs/$(CANDIDATE_NAME) \
-		$(foreach run,instant_policy demo_replay,$(run)=$(METAWORLD_TABLE)) --env-type metaworld_pointcloud \
-		--allow-difference checkpoint --paired $(CANDIDATE_NAME)=instant_policy --paired $(CANDIDATE_NAME)=demo_replay \
-		--out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME)
+	redo=$$($(VENV)/bin/lerobot-ip-eval-table $(METAWORLD_JOIN) --recorded-differently) || exit 1; amend=; \
+	if [ -n "$$redo" ]; then echo "recorded here with other bytes: $$redo; the committed columns evaluate them again"; \
+	rm -rf $(foreach run,instant_policy demo_replay,$(METAWORLD_OUT)/runs/redo-$(run)); \
+	$(METAWORLD) $(IP) --tasks $$redo --run-name redo-instant_policy && \
+	$(METAWORLD) --policy demo_replay --tasks $$redo --run-name redo-demo_replay || exit 1; \
+	amend="$(foreach run,instant_policy demo_replay,$(run)=$(METAWORLD_OUT)/runs/redo-$(run))"; fi; \
+	$(VENV)/bin/lerobot-ip-eval-table $(METAWORLD_JOIN) $$amend \
+		--allow-difference checkpoint --paired $(CANDIDATE_NAME)=instant_policy \
+		--paired $(CANDIDATE_NAME)=demo_replay --out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME)
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)

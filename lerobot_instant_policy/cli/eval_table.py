@@ -27,6 +27,11 @@ stays, and the counts, intervals and paired differences are those of the amended
 the column lacks, must have run each on the column's seeds, under its settings and conditions (but those named with
 ``--allow-difference``); demonstrations recorded again are noted. OUT.manifest.json names the replaced cells and
 their run (``"replaced_cells"``). The manifest file comes first, then the runs that amend it.
+
+``--recorded-differently`` prints the tasks (comma-separated, none: an empty line) where the columns read a
+demonstration set of the same seeds recorded with other bytes, as pybullet on another machine may record it
+(``manifest.recorded_differently``), and writes nothing: evaluate those tasks of the committed columns again here
+and give the runs after the manifest file to amend them (``make results-candidate`` does).
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ from ..evaluation.manifest import (
     column_manifest,
     manifest_counts,
     read_manifest_file,
+    recorded_differently,
 )
 from ..evaluation.paired import UNITS, paired_difference
 from ..evaluation.success_table import (
@@ -87,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--unchecked", action="store_true",
                         help="join columns without manifests (earlier tables, old runs): not checked, not paired")
     parser.add_argument("--json", action="store_true", help="print the table as JSON instead of text")
+    parser.add_argument("--recorded-differently", action="store_true",
+                        help="print the tasks whose demonstration sets the columns read recorded from the same seeds "
+                             "with other bytes (comma-separated) and write nothing")
     return parser
 
 
@@ -149,6 +158,11 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--paired takes A=B with two column names, got {args.paired}")
         results, manifests, notes = read_columns(args.paths, args.policy, args.env_type, args.unchecked,
                                                  tuple(args.allow_difference))
+        if args.recorded_differently:
+            if len(manifests) < 2:
+                raise ManifestError("--recorded-differently compares the manifests of at least two columns")
+            print(",".join(recorded_differently(manifests)))
+            return 0
         if not args.unchecked:
             if len(manifests) < len({result.policy for result in results}):
                 raise ManifestError("an earlier table's rows have no manifest: join them with --unchecked")

@@ -242,16 +242,38 @@ def check_joinable(manifests: dict[str, dict], allowed: tuple[str, ...] = ()) ->
         if len(seeds) > 1:
             raise ManifestError(f"{key[0]}, set {key[1]}: the columns were evaluated on different seeds "
                                 f"({_seed_spans(column_cells)}); evaluate them on the same split and seeds")
-        with_demos = {name: cell for name, cell in column_cells.items() if cell.demo_fingerprint is not None}
-        for source, num_demos in {(cell.swap_source, cell.num_demos) for cell in with_demos.values()}:
-            same_source = {name: cell for name, cell in with_demos.items()
-                           if cell.swap_source == source and cell.num_demos == num_demos}
+        for same_source in _same_source_readers(column_cells):
             if len({(cell.demo_seed, cell.demo_fingerprint) for cell in same_source.values()}) > 1:
                 raise ManifestError(f"{key[0]}, set {key[1]}: columns {sorted(same_source)} read different "
                                     f"demonstration sets (seeds {sorted({c.demo_seed for c in same_source.values()})}"
                                     f", or the same seeds recorded differently); evaluate them with the same sets")
     check_conditions(manifests, allowed)
     return unknown_conditions(manifests)
+
+
+def _same_source_readers(column_cells: dict[str, CellOutcome]) -> list[dict[str, CellOutcome]]:
+    """One cell's columns (name → cell) that read demonstrations, grouped by what they read: the same source task
+    and number of demonstrations."""
+    with_demos = {name: cell for name, cell in column_cells.items() if cell.demo_fingerprint is not None}
+    return [{name: cell for name, cell in with_demos.items() if (cell.swap_source, cell.num_demos) == group}
+            for group in sorted({(cell.swap_source, cell.num_demos) for cell in with_demos.values()}, key=str)]
+
+
+def recorded_differently(manifests: dict[str, dict]) -> list[str]:
+    """The tasks (sorted) with a cell whose demonstrations two columns read from the same seed and source but with
+    other bytes: the same set recorded on another machine, where the simulator's arithmetic differs (a column
+    evaluated elsewhere). Evaluating those tasks of the older column again where the newer one ran, and amending it
+    with that run (:func:`amend_column`), pairs the columns on the same demonstrations. Cells some column lacks are
+    left out."""
+    cells = [cells_of(manifest) for manifest in manifests.values()]
+    tasks = set()
+    for key in set.intersection(*(set(column) for column in cells)):
+        column_cells = dict(zip(manifests, (column[key] for column in cells)))
+        for same_source in _same_source_readers(column_cells):
+            for seed in {cell.demo_seed for cell in same_source.values()}:
+                if len({cell.demo_fingerprint for cell in same_source.values() if cell.demo_seed == seed}) > 1:
+                    tasks.add(key[0])
+    return sorted(tasks)
 
 
 def check_conditions(manifests: dict[str, dict], allowed: tuple[str, ...] = ()) -> None:

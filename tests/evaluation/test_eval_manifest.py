@@ -317,6 +317,43 @@ def test_a_run_after_a_manifest_replaces_that_columns_cells_of_its_tasks(fake_su
     assert json.loads(capsys.readouterr().out)["rows"] == table["rows"]
 
 
+def test_sets_recorded_differently_elsewhere_are_listed_and_evaluated_again_here_pair_the_columns(
+        fake_suite, tmp_path, capsys):
+    """A committed table whose open_drawer set was recorded on another machine (the same seed, other bytes): a
+    candidate evaluated here cannot join it; --recorded-differently names open_drawer and writes nothing; the
+    committed columns' open_drawer evaluated again here amend them, and the candidate joins and pairs. Where every set
+    matches, the listing is empty."""
+    manifest = amendable_manifest(fake_suite, tmp_path)
+    columns = json.loads(manifest.read_text())
+    for column in columns.values():
+        for cell in column["cells"]:
+            if cell["task"] == "open_drawer":
+                cell["demo_fingerprint"] = "f" * 64
+    manifest.write_text(json.dumps(columns))
+    candidate = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, run_name="candidate"),
+                           two_cells([True, True], [True, False]))
+    given = [f"candidate={candidate}", f"demo_replay={manifest}", f"other={manifest}"]
+    capsys.readouterr()
+    assert eval_table([*given, "--out", str(tmp_path / "refused")]) == 2
+    assert "open_drawer, set 0:" in capsys.readouterr().err
+    assert eval_table([*given, "--recorded-differently", "--out", str(tmp_path / "listed")]) == 0
+    assert capsys.readouterr().out.strip() == "open_drawer"
+    assert not (tmp_path / "listed.json").exists()
+    again = {name: fake_suite(SuiteSettings(out=tmp_path / "here", episodes=2, demo_sets=1, run_name=name),
+                              {("open_drawer", 0): [False, True]}, tasks=["open_drawer"])
+             for name in ("demo_replay", "other")}
+    capsys.readouterr()
+    amended = [*given, *(f"{name}={run}" for name, run in again.items())]
+    assert eval_table([*amended, "--paired", "candidate=demo_replay", "--json", "--out", str(tmp_path / "t")]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert table["overall"]["candidate"]["successes"] == 3 and table["overall"]["demo_replay"]["successes"] == 2
+    assert table["paired"][0]["difference"] == pytest.approx(0.25)
+    assert eval_table([*amended, "--recorded-differently", "--out", str(tmp_path / "none")]) == 0
+    assert capsys.readouterr().out == "\n"
+    assert eval_table([f"candidate={candidate}", "--recorded-differently", "--out", str(tmp_path / "one")]) == 2
+    assert "at least two columns" in capsys.readouterr().err
+
+
 def test_a_run_that_does_not_match_the_column_it_amends_is_refused(fake_suite, tmp_path, capsys):
     """Refused: a run holding a cell the column lacks, one on other seeds, one with another setting, one with
     another condition (its setting and the conditions it sets, unless named with --allow-difference), and a run
