@@ -241,7 +241,8 @@ eval-metaworld: $(INSTALLED) osmesa
 # checkpoint than the shipped column (--allow-difference checkpoint); the replay columns differ in their options.
 # A demonstration set recorded here with other bytes than the committed column's (pybullet on another CPU: 7 of the
 # suite's 36 sets on 2026-11-27) would pair other demonstrations: the committed columns' tasks with such a set are
-# evaluated again here (runs redo-<column>) and amend those columns before the join.
+# evaluated again here (runs redo-<column>) and amend those columns before the join. Episodes on other machines may
+# still end otherwise (float arithmetic in a closed loop): docs/training.md, "Shipping on evidence".
 # SUITE_ARGS=--resume continues an interrupted run.
 CANDIDATE ?= checkpoints/stream/best/pretrained_model
 CANDIDATE_NAME ?= standing_best
