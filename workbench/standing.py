@@ -211,6 +211,13 @@ def per_task(result: dict) -> dict:
     return {key: result[key] for key in PAIRED_KEYS}
 
 
+def validation_record(results: dict) -> dict:
+    """What a record keeps of :func:`validate`'s ``results`` (set → result): ``validation`` (set → :func:`figures`)
+    and ``validation_per_task`` (set → :func:`per_task`)."""
+    return {"validation": {name: figures(result) for name, result in results.items()},
+            "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+
+
 def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
     """``lerobot-ip-action-error``'s results for ``checkpoint`` (a pretrained_model folder) on both sets (set →
     result)."""
@@ -229,7 +236,7 @@ def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
 
 def shipped_validation(config: StandingConfig, root: Path, standing: Path = STANDING) -> dict:
     """The shipped checkpoint on both validation sets under ``root``, as a run's record holds a save's figures
-    (``validation``: set → :func:`figures`; ``validation_per_task``: set → :func:`per_task`), with the ``key`` it was
+    (:func:`validation_record`), with the ``key`` it was
     validated under: the SHA-256 of the checkpoint's files and of the sets' presets, the validation's size, setting
     and device. Cached in ``standing/shipped.json`` and validated again only when the key changes."""
     key = {"checkpoint_sha256": checkpoint_fingerprint(SHIPPED),
@@ -243,8 +250,7 @@ def shipped_validation(config: StandingConfig, root: Path, standing: Path = STAN
         if cached.get("key") == key:
             return cached
     results = validate(config, SHIPPED, root)
-    record = {"key": key, "validation": {name: figures(result) for name, result in results.items()},
-              "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+    record = {"key": key, **validation_record(results)}
     standing.mkdir(parents=True, exist_ok=True)
     cache.write_text(json.dumps(record, indent=2))
     return record
@@ -294,8 +300,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         "start_step": start_step, "end_step": step_of(save), "samples": samples, "tasks": tasks,
         "samples_total": before["samples_total"] + samples, "tasks_total": before["tasks_total"] + tasks,
         "trained_s": round(pool["elapsed_s"], 1), "wall_s": round(time.monotonic() - started, 1),
-        "pool": pool, "validation": {name: figures(result) for name, result in results.items()},
-        "validation_per_task": {name: per_task(result) for name, result in results.items()}, "config": asdict(config),
+        "pool": pool, **validation_record(results), "config": asdict(config),
         "hidden_dim": json.loads((save / MODEL_DIR / "config.json").read_text())["hidden_dim"],
     }
     try:

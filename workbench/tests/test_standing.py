@@ -31,6 +31,7 @@ from workbench.standing import (
     start_save,
     train_command,
     trend,
+    validation_record,
 )
 
 HOLD_MM = [25.0, 30.0, 35.0, 28.0, 32.0, 30.0]
@@ -61,8 +62,7 @@ def _entry(moved: float, one_layout: float, samples_total: int, per_task_kept: b
              "start_step": 0, "end_step": samples_total // 8, "started": "2026-11-27T00:00:00+00:00",
              "config": {"val_tasks": 24, "val_frames_per_task": 4}}
     if per_task_kept:
-        return {**entry, "validation": {name: figures(result) for name, result in results.items()},
-                "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+        return {**entry, **validation_record(results)}
     return {**entry, "validation": {"moved": old_figures(moved), "one_layout": old_figures(one_layout)}}
 
 
@@ -202,9 +202,7 @@ def test_the_paired_difference_from_the_best_is_recorded_where_the_best_kept_its
 
 def _shipped(moved: float, one_layout: float) -> dict:
     """The shipped checkpoint's validation as :func:`shipped_validation` returns it."""
-    results = {"moved": _action_error(moved), "one_layout": _action_error(one_layout)}
-    return {"validation": {name: figures(result) for name, result in results.items()},
-            "validation_per_task": {name: per_task(result) for name, result in results.items()}}
+    return validation_record({"moved": _action_error(moved), "one_layout": _action_error(one_layout)})
 
 
 def _compared(moved: float, one_layout: float, samples_total: int, shipped: dict) -> dict:
