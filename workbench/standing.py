@@ -159,7 +159,8 @@ def train_command(config: StandingConfig, resume_from: Path | None, train_dir: P
               f"--pool.generators={config.generators}", f"--pool.generator_threads={config.generator_threads}",
               f"--pool.device={config.device}"]
     if resume_from is not None:
-        start = [f"--config_path={resume_from / MODEL_DIR / 'train_config.json'}", "--resume=true"]
+        start = [f"--config_path={resume_from / MODEL_DIR / 'train_config.json'}", "--resume=true",
+                 f"--batch_size={config.batch_size}"]  # a resumed config keeps the batch it was saved with
     else:
         start = [f"--policy.path={SHIPPED}", f"--policy.optimizer_lr={config.optimizer_lr}",
                  "--policy.push_to_hub=false", f"--batch_size={config.batch_size}", "--steps=100000000",

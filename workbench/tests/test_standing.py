@@ -127,8 +127,9 @@ def test_a_save_brought_back_from_a_device_is_kept_like_a_local_one(tmp_path):
 
 
 def test_a_run_resumes_its_save_and_a_first_run_continues_the_shipped_weights(tmp_path):
-    config = StandingConfig(device="cpu", generators=2, samples_per_task=8)
+    config = StandingConfig(device="cpu", generators=2, samples_per_task=8, batch_size=64)
     resumed = train_command(config, tmp_path / "000500", tmp_path / "run")
+    assert "--batch_size=64" in resumed  # not the saved config's batch: the samples a run counts are steps × this
     assert "--resume=true" in resumed and f"--config_path={tmp_path / '000500' / 'pretrained_model'}/train_config.json" \
         in resumed
     assert "--pool" in resumed and "--pool.generators=2" in resumed and "--stream.samples_per_task=8" in resumed
