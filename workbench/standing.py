@@ -194,6 +194,13 @@ def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.
     return processes
 
 
+def wait_for(generating: dict[str, subprocess.Popen | None]) -> None:
+    """Wait for :func:`validation_sets`' processes; ``StandingError`` with its output where one failed."""
+    for name, process in generating.items():
+        if process is not None and process.wait() != 0:
+            raise StandingError(f"generating the {name} validation set failed: {process.stderr.read()[-2000:]}")
+
+
 def figures(result: dict) -> dict:
     """Translation error, its ratio to holding still and the context gain in translation, from
     ``lerobot-ip-action-error``'s default setting, with the two ratios' 95% intervals over tasks
@@ -257,6 +264,15 @@ def shipped_validation(config: StandingConfig, root: Path, standing: Path = STAN
     return record
 
 
+def compare_with_shipped(config: StandingConfig, entry: dict, root: Path, standing: Path = STANDING) -> dict:
+    """:func:`paired_against` the shipped checkpoint validated on the same frames (:func:`shipped_validation`); where
+    that cannot be had, each set holds ``{"not_compared": why}`` (the save is kept all the same)."""
+    try:
+        return paired_against(entry, shipped_validation(config, root, standing))
+    except (StandingError, FileNotFoundError) as error:
+        return {name: {"not_compared": str(error)} for name in VALIDATION_CONFIGS}
+
+
 # ---------------------------------------------------------------------------------------------------- one run
 def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
     """One run (module docstring); returns its record (what the save's ``standing.json`` holds, last run last)."""
@@ -287,9 +303,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     if not saves:
         raise StandingError(f"no save completed before the deadline; training log:\n{log_path.read_text()[-3000:]}")
     save = saves[-1]
-    for name, process in generating.items():
-        if process is not None and process.wait() != 0:
-            raise StandingError(f"generating the {name} validation set failed: {process.stderr.read()[-2000:]}")
+    wait_for(generating)
     results = validate(config, save / MODEL_DIR, work / "validation")
     pool = json.loads((save / POOL_STATE).read_text())["stats"]
     steps = step_of(save) - start_step
@@ -304,10 +318,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         "pool": pool, **validation_record(results), "config": asdict(config),
         "hidden_dim": json.loads((save / MODEL_DIR / "config.json").read_text())["hidden_dim"],
     }
-    try:
-        entry["against_shipped"] = paired_against(entry, shipped_validation(config, work / "validation", standing))
-    except (StandingError, FileNotFoundError) as error:  # the save is kept all the same, with the reason
-        entry["against_shipped"] = {name: {"not_compared": str(error)} for name in VALIDATION_CONFIGS}
+    entry["against_shipped"] = compare_with_shipped(config, entry, work / "validation", standing)
     record = {"runs": [*previous["runs"], entry]}
     (save / RECORD).write_text(json.dumps(record, indent=2))
     if config.out:
@@ -400,11 +411,22 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
 
 
 def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
-    """Keep a run brought back from a device (``save.tar`` and ``standing.json`` in ``folder``)."""
+    """Keep a run brought back from a device (``save.tar`` and ``standing.json`` in ``folder``). Where the device did
+    not compare the save with the shipped checkpoint (a device call carries 64 MiB, and the tree may travel without
+    it), the comparison is made here, the shipped checkpoint validated on this machine's CPU on the run's validation
+    sets (generated under the run's ``work`` where missing) and cached as a local run's is."""
     unpacked = folder / "unpacked"
     shutil.rmtree(unpacked, ignore_errors=True)
     with tarfile.open(folder / SAVE_TAR) as archive:
         archive.extractall(unpacked, filter="data")
+    record = read_record(unpacked)
+    entry = record["runs"][-1]
+    if beats_shipped(entry) is None:
+        config = StandingConfig(**{**entry["config"], "device": "cpu", "out": None})
+        root = Path(config.work) / "validation"
+        wait_for(validation_sets(config, root))
+        entry["against_shipped"] = compare_with_shipped(config, entry, root, standing)
+        (unpacked / RECORD).write_text(json.dumps(record, indent=2))
     return keep(unpacked, standing, curve_file)
 
 

@@ -114,8 +114,9 @@ def test_the_last_save_is_always_replaced_and_the_best_only_when_better_on_both_
     assert curve.with_suffix(".png").stat().st_size > 10_000  # the picture is redrawn beside the JSON
 
 
-def test_a_save_brought_back_from_a_device_is_kept_like_a_local_one(tmp_path):
-    save = _save(tmp_path / "device", 700, [_entry(0.8, 0.5, 5600)])
+def test_a_save_brought_back_from_a_device_is_kept_like_a_local_one(tmp_path, monkeypatch):
+    monkeypatch.setattr(standing_module, "validate", lambda *args: pytest.fail("compared on the device already"))
+    save = _save(tmp_path / "device", 700, [_compared(0.8, 0.5, 5600, _shipped(0.9, 0.6))])
     out = tmp_path / "out"
     out.mkdir()
     with tarfile.open(out / SAVE_TAR, "w") as archive:
@@ -250,6 +251,36 @@ def test_the_shipped_checkpoint_is_validated_once_and_again_only_when_its_key_ch
     shipped_validation(StandingConfig(val_tasks=12), tmp_path / "validation", tmp_path / "standing")
     assert calls[-1] == (standing_module.SHIPPED, 12)  # another validation size: validated again
     assert json.loads((tmp_path / "standing" / SHIPPED_RECORD).read_text())["key"]["val_tasks"] == 12
+
+
+def test_a_device_save_not_compared_with_the_shipped_checkpoint_is_compared_here_on_the_cpu(tmp_path, monkeypatch):
+    validated = []
+
+    def validate(config, checkpoint, root):
+        validated.append((checkpoint, config.device, root))
+        return {"moved": _action_error(0.9), "one_layout": _action_error(0.6)}
+
+    monkeypatch.setattr(standing_module, "validate", validate)
+    work = tmp_path / "work"
+    for name in standing_module.VALIDATION_CONFIGS:  # the sets are here already: nothing is generated
+        (work / "validation" / name / "meta").mkdir(parents=True)
+        (work / "validation" / name / "meta" / "info.json").write_text("{}")
+    entry = _entry(0.8, 0.5, 5600, per_task_kept=True)
+    entry["config"] = {**vars(StandingConfig(device="cuda", out="/device/out", work=str(work)))}
+    entry["against_shipped"] = {name: {"not_compared": "no shipped checkpoint on the device"}
+                                for name in standing_module.VALIDATION_CONFIGS}
+    save = _save(tmp_path / "device", 700, [entry])
+    out = tmp_path / "out"
+    out.mkdir()
+    with tarfile.open(out / SAVE_TAR, "w") as archive:
+        for part in ("pretrained_model", "training_state", RECORD):
+            archive.add(save / part, arcname=part)
+    result = accept(out, tmp_path / "standing", tmp_path / "curve.json")
+    assert validated == [(standing_module.SHIPPED, "cpu", work / "validation")]
+    assert result["best_beats_shipped"] is True  # 0.8 against 0.9 and 0.5 against 0.6
+    against = read_record(tmp_path / "standing" / "last")["runs"][-1]["against_shipped"]
+    assert against["one_layout"]["vs_holding_still"]["difference"] == pytest.approx(-0.1, abs=1e-3)
+    assert json.loads((tmp_path / "standing" / SHIPPED_RECORD).read_text())["key"]["device"] == "cpu"
 
 
 def _point(samples: int, moved: float, one_layout: float) -> dict:
