@@ -75,7 +75,9 @@ class StandingError(RuntimeError):
 @dataclass
 class StandingConfig:
     """One run of the standing training (module docstring). ``prior_samples`` / ``prior_tasks``: what the start
-    (``--start``, before any standing save exists) had already seen. ``lerobot_args``: more ``lerobot-train`` flags."""
+    (``--start``, before any standing save exists) had already seen. ``device``: where the update runs;
+    ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its CPU
+    cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags."""
 
     deadline_s: float = 9000.0
     validate_s: float = 420.0
@@ -85,6 +87,7 @@ class StandingConfig:
     stream_config: str = "configs/generate/stream_bounded_mixed.json"
     seed: int = 5000
     device: str = "cpu"
+    generator_device: str | None = None
     batch_size: int = 8
     optimizer_lr: float = 2e-4
     samples_per_task: int = 8
@@ -157,7 +160,7 @@ def train_command(config: StandingConfig, resume_from: Path | None, train_dir: P
               f"--stream.surface_samples={config.surface_samples}", "--pool",
               f"--pool.capacity={config.capacity}", f"--pool.min_tasks={config.min_tasks}",
               f"--pool.generators={config.generators}", f"--pool.generator_threads={config.generator_threads}",
-              f"--pool.device={config.device}"]
+              f"--pool.device={config.generator_device or config.device}"]
     if resume_from is not None:
         start = [f"--config_path={resume_from / MODEL_DIR / 'train_config.json'}", "--resume=true",
                  f"--batch_size={config.batch_size}"]  # a resumed config keeps the batch it was saved with

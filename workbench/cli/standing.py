@@ -24,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     one = commands.add_parser("run", help="continue the standing run to a deadline, validate, keep")
     defaults = StandingConfig()
     one.add_argument("--hours", type=float, help="the deadline in hours (instead of --deadline-s)")
-    for name in ("work", "out", "start", "stream_config", "device"):
+    for name in ("work", "out", "start", "stream_config", "device", "generator_device"):
         one.add_argument(f"--{name.replace('_', '-')}", default=getattr(defaults, name))
     for name in ("deadline_s", "validate_s", "optimizer_lr"):
         one.add_argument(f"--{name.replace('_', '-')}", type=float, default=getattr(defaults, name))

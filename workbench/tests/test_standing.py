@@ -136,6 +136,9 @@ def test_a_run_resumes_its_save_and_a_first_run_continues_the_shipped_weights(tm
     assert "--pool" in resumed and "--pool.generators=2" in resumed and "--stream.samples_per_task=8" in resumed
     fresh = train_command(config, None, tmp_path / "run")
     assert any(arg.startswith("--policy.path=") for arg in fresh) and "--resume=true" not in fresh
+    assert "--pool.device=cpu" in fresh and "--policy.device=cpu" in fresh
+    on_gpu = train_command(StandingConfig(device="cuda", generator_device="cpu"), None, tmp_path / "run")
+    assert "--pool.device=cpu" in on_gpu and "--policy.device=cuda" in on_gpu  # the CPU cores feed the GPU's update
 
 
 @pytest.mark.parametrize(("overrides", "message"), [
