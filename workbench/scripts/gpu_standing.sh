@@ -14,7 +14,8 @@
 # and here: git sparse-checkout disable; cat OUT/save.tar.part-* > F/save.tar; cp OUT/standing.json F/;
 #   python -m workbench.cli.standing accept F
 # The run continues checkpoints/stream/last on cuda with the CPU cores generating (its deadline and validation
-# window in seconds, defaults 430 and 120); its save comes back in parts under 16 MiB. The shipped checkpoint is copied
+# window in seconds, defaults 430 and 120; a save every 250 steps, about 35 s at batch 64 there, so the stop loses
+# little); its save comes back in parts under 16 MiB. The shipped checkpoint is copied
 # from the installed wheel (the tree leaves it out) so the device compares the save with it. If the run has not ended
 # by 570 s of the call, the latest complete LeRobot save is packed instead (raw.tar.part-*), to be validated here.
 deadline=${1:-430}
@@ -25,7 +26,7 @@ shipped=lerobot_instant_policy/assets/checkpoints/instant_policy
 [ -f $shipped/model.safetensors ] || { mkdir -p $shipped && cp -r /tmp/site/$shipped/. $shipped/; }
 mkdir -p outputs/gpu_standing
 setsid nohup python3 -m workbench.cli.standing run --device cuda --generator-device cpu --generators 13 \
-  --val-workers 1 --batch-size 64 --deadline-s "$deadline" --validate-s "$validate" --out outputs/gpu_standing/out \
+  --val-workers 1 --batch-size 64 --save-freq 250 --deadline-s "$deadline" --validate-s "$validate" --out outputs/gpu_standing/out \
   > outputs/gpu_standing/wrapper.log 2>&1 &
 while [ $SECONDS -lt 570 ] && [ ! -f outputs/gpu_standing/out/standing.json ]; do sleep 3; done
 echo "ended at ${SECONDS}s"
