@@ -3,7 +3,7 @@ fresh pseudo-tasks to a wall-clock deadline, validates the last save on the two 
 run's new start, the best save kept apart for shipping, and a point on the scaling curve.
 
 ``python -m workbench.cli.standing run --hours 2.5`` (here, on the CPU, under ``nice``), or on a GPU lease
-``python -m workbench.cli.standing run --device cuda --generators 14 --deadline-s 540 --out $OUT`` and then here
+``workbench/scripts/gpu_standing.sh`` (``run --device cuda --generator-device cpu ... --out DIR``) and then here
 ``python -m workbench.cli.standing accept FOLDER``. A run:
 
 1. starts from the last save, ``checkpoints/stream/last/`` (LeRobot's ``pretrained_model/`` and ``training_state/``:

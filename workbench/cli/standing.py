@@ -1,7 +1,7 @@
 """``python -m workbench.cli.standing`` (from the repository root): the command line of :mod:`workbench.standing`.
 
   run --hours 2.5                                   (here: continue checkpoints/stream/last on the CPU pool, nice)
-  run --device cuda --generators 14 --batch-size 64 --deadline-s 540 --validate-s 150 --out $OUT   (a GPU lease)
+  run --device cuda --generator-device cpu --generators 13 --batch-size 64 --out DIR   (a GPU lease: gpu_standing.sh)
   accept FOLDER                                     (here: keep what a lease brought back)
   trend --min-samples 140000                        (what the curve predicts, from its points since a recipe began)
 """
