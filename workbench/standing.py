@@ -325,12 +325,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     record = {"runs": [*previous["runs"], entry]}
     (save / RECORD).write_text(json.dumps(record, indent=2))
     if config.out:
-        out = Path(config.out)
-        out.mkdir(parents=True, exist_ok=True)
-        with tarfile.open(out / SAVE_TAR, "w") as archive:
-            for part in (MODEL_DIR, STATE_DIR, RECORD):
-                archive.add(save / part, arcname=part)
-        (out / RECORD).write_text(json.dumps(record, indent=2))
+        pack(save, Path(config.out))
     else:
         keep(save, standing, curve_file)
         record = read_record(standing / "last")
@@ -411,6 +406,16 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     add_curve_point(point, curve_file)
     return {"best": kept, "point": point, "against_best": entry.get("against_best"),
             "best_beats_shipped": entry["best_beats_shipped"]}
+
+
+def pack(save: Path, out: Path) -> None:
+    """``save`` (with its ``standing.json``) as a device brings it back for :func:`accept`: ``save.tar`` and the
+    record beside it in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(out / SAVE_TAR, "w") as archive:
+        for part in (MODEL_DIR, STATE_DIR, RECORD):
+            archive.add(save / part, arcname=part)
+    shutil.copyfile(save / RECORD, out / RECORD)
 
 
 def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:

@@ -7,7 +7,7 @@ is due, a device's packed save kept the same way, what the curve predicts, and b
 from __future__ import annotations
 
 import json
-import tarfile
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -16,13 +16,13 @@ import workbench.standing as standing_module
 from lerobot_instant_policy.evaluation.action_error import task_intervals
 from workbench.standing import (
     RECORD,
-    SAVE_TAR,
     SHIPPED_RECORD,
     StandingConfig,
     accept,
     complete_saves,
     figures,
     keep,
+    pack,
     paired_against,
     per_task,
     plot_curve,
@@ -117,12 +117,8 @@ def test_the_last_save_is_always_replaced_and_the_best_only_when_better_on_both_
 def test_a_save_brought_back_from_a_device_is_kept_like_a_local_one(tmp_path, monkeypatch):
     monkeypatch.setattr(standing_module, "validate", lambda *args: pytest.fail("compared on the device already"))
     save = _save(tmp_path / "device", 700, [_compared(0.8, 0.5, 5600, _shipped(0.9, 0.6))])
-    out = tmp_path / "out"
-    out.mkdir()
-    with tarfile.open(out / SAVE_TAR, "w") as archive:
-        for part in ("pretrained_model", "training_state", RECORD):
-            archive.add(save / part, arcname=part)
-    result = accept(out, tmp_path / "standing", tmp_path / "curve.json")
+    pack(save, tmp_path / "out")
+    result = accept(tmp_path / "out", tmp_path / "standing", tmp_path / "curve.json")
     assert result["best"] and result["point"]["samples_total"] == 5600
     assert (tmp_path / "standing" / "last" / "pretrained_model" / "model.safetensors").read_text() == "weights 700"
 
@@ -269,16 +265,12 @@ def test_a_device_save_not_compared_with_the_shipped_checkpoint_is_compared_here
         (work / "validation" / name / "meta").mkdir(parents=True)
         (work / "validation" / name / "meta" / "info.json").write_text("{}")
     entry = _entry(0.8, 0.5, 5600, per_task_kept=True)
-    entry["config"] = {**vars(StandingConfig(device="cuda", out="/device/out", work=str(work)))}
+    entry["config"] = asdict(StandingConfig(device="cuda", out="/device/out", work=str(work)))
     entry["against_shipped"] = {name: {"not_compared": "no shipped checkpoint on the device"}
                                 for name in standing_module.VALIDATION_CONFIGS}
     save = _save(tmp_path / "device", 700, [entry])
-    out = tmp_path / "out"
-    out.mkdir()
-    with tarfile.open(out / SAVE_TAR, "w") as archive:
-        for part in ("pretrained_model", "training_state", RECORD):
-            archive.add(save / part, arcname=part)
-    result = accept(out, tmp_path / "standing", tmp_path / "curve.json")
+    pack(save, tmp_path / "out")
+    result = accept(tmp_path / "out", tmp_path / "standing", tmp_path / "curve.json")
     assert validated == [(standing_module.SHIPPED, "cpu", work / "validation")]
     assert result["best_beats_shipped"] is True  # 0.8 against 0.9 and 0.5 against 0.6
     against = read_record(tmp_path / "standing" / "last")["runs"][-1]["against_shipped"]
