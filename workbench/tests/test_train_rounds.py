@@ -260,6 +260,13 @@ def _run_command(out: Path, config: Path) -> list[str]:
     return [sys.executable, "-m", "workbench.cli.train_rounds", "--config", str(config), "--out", str(out), *TINY]
 
 
+def _interruptible() -> None:
+    """In the child before it starts: SIGINT back to its default, so Python installs its KeyboardInterrupt handler and
+    the interruption below reaches the run as a user's Ctrl-C does, even where the tests run with SIGINT ignored (in a
+    background job of a non-interactive shell, ``make test &`` or ``nohup``, children inherit the ignore)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.slow
 def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and_survives_an_interruption(tmp_path):
     """2 rounds × 2 reach tasks × 3 demonstrations, 4 steps of batch 2 per round (about 3 minutes on 2 busy cores).
@@ -270,7 +277,7 @@ def test_a_tiny_run_on_cpu_grows_its_data_resumes_training_extends_the_cache_and
     layout = Layout(out)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "WANDB_MODE": "disabled"}
     first = subprocess.Popen(_run_command(out, config), env=env, cwd=REPO, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+                             stderr=subprocess.PIPE, text=True, preexec_fn=_interruptible)
     deadline = time.time() + 400
     while time.time() < deadline and first.poll() is None:
         if layout.state.is_file() and "train-000" in json.loads(layout.state.read_text())["stages"]:
