@@ -248,33 +248,30 @@ CANDIDATE ?= checkpoints/stream/best/pretrained_model
 CANDIDATE_NAME ?= standing_best
 SUITE_TABLE := docs/results_suite_$(SPLIT).manifest.json
 METAWORLD_TABLE := docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT).manifest.json
-SUITE_JOIN = $(CANDIDATE_NAME)=$(SUITE_OUT)/runs/$(CANDIDATE_NAME) \
-	$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_TABLE))
-METAWORLD_JOIN = $(CANDIDATE_NAME)=$(METAWORLD_OUT)/runs/$(CANDIDATE_NAME) \
-	$(foreach run,instant_policy demo_replay,$(run)=$(METAWORLD_TABLE)) --env-type metaworld_pointcloud
+# Each committed column the candidate is paired with, and the options it was evaluated with.
+COLUMN_instant_policy = $(IP)
+COLUMN_demo_replay_per_object = $(PER_OBJECT)
+COLUMN_demo_replay = --policy demo_replay
+# One half of results-candidate, after the candidate's own run: $(1) the evaluation command, $(2) its output folder,
+# $(3) the committed table's manifest, $(4) the committed columns, $(5) lerobot-ip-eval-table's further options
+# (given to both of its calls: with --recorded-differently it only prints).
+define candidate_join
+	join="$(CANDIDATE_NAME)=$(2)/runs/$(CANDIDATE_NAME) $(foreach run,$(4),$(run)=$(3))"; \
+	redo=$$($(VENV)/bin/lerobot-ip-eval-table $$join $(5) --recorded-differently) || exit 1; amend=; \
+	if [ -n "$$redo" ]; then echo "recorded here with other bytes: $$redo; the committed columns evaluate them again"; \
+	rm -rf $(foreach run,$(4),$(2)/runs/redo-$(run)); \
+	$(foreach run,$(4),$(1) $(COLUMN_$(run)) --tasks $$redo --run-name redo-$(run) &&) true || exit 1; \
+	amend="$(foreach run,$(4),$(run)=$(2)/runs/redo-$(run))"; fi; \
+	$(VENV)/bin/lerobot-ip-eval-table $$join $$amend $(5) --allow-difference checkpoint \
+		$(foreach run,$(4),--paired $(CANDIDATE_NAME)=$(run))
+endef
 results-candidate: $(INSTALLED) osmesa
 	$(SUITE) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
-	redo=$$($(VENV)/bin/lerobot-ip-eval-table $(SUITE_JOIN) --recorded-differently) || exit 1; amend=; \
-	if [ -n "$$redo" ]; then echo "recorded here with other bytes: $$redo; the committed columns evaluate them again"; \
-	rm -rf $(foreach run,instant_policy demo_replay_per_object demo_replay,$(SUITE_OUT)/runs/redo-$(run)); \
-	$(SUITE) $(IP) --tasks $$redo --run-name redo-instant_policy && \
-	$(SUITE) $(PER_OBJECT) --tasks $$redo --run-name redo-demo_replay_per_object && \
-	$(SUITE) --policy demo_replay --tasks $$redo --run-name redo-demo_replay || exit 1; \
-	amend="$(foreach run,instant_policy demo_replay_per_object demo_replay,$(run)=$(SUITE_OUT)/runs/redo-$(run))"; fi; \
-	$(VENV)/bin/lerobot-ip-eval-table $(SUITE_JOIN) $$amend \
-		--allow-difference checkpoint --allow-difference policy_options --paired $(CANDIDATE_NAME)=instant_policy \
-		--paired $(CANDIDATE_NAME)=demo_replay_per_object --paired $(CANDIDATE_NAME)=demo_replay \
-		--out docs/results_suite_$(SPLIT)_$(CANDIDATE_NAME)
+	$(call candidate_join,$(SUITE),$(SUITE_OUT),$(SUITE_TABLE),instant_policy demo_replay_per_object demo_replay,\
+		--allow-difference policy_options --out docs/results_suite_$(SPLIT)_$(CANDIDATE_NAME))
 	$(METAWORLD) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
-	redo=$$($(VENV)/bin/lerobot-ip-eval-table $(METAWORLD_JOIN) --recorded-differently) || exit 1; amend=; \
-	if [ -n "$$redo" ]; then echo "recorded here with other bytes: $$redo; the committed columns evaluate them again"; \
-	rm -rf $(foreach run,instant_policy demo_replay,$(METAWORLD_OUT)/runs/redo-$(run)); \
-	$(METAWORLD) $(IP) --tasks $$redo --run-name redo-instant_policy && \
-	$(METAWORLD) --policy demo_replay --tasks $$redo --run-name redo-demo_replay || exit 1; \
-	amend="$(foreach run,instant_policy demo_replay,$(run)=$(METAWORLD_OUT)/runs/redo-$(run))"; fi; \
-	$(VENV)/bin/lerobot-ip-eval-table $(METAWORLD_JOIN) $$amend \
-		--allow-difference checkpoint --paired $(CANDIDATE_NAME)=instant_policy \
-		--paired $(CANDIDATE_NAME)=demo_replay --out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME)
+	$(call candidate_join,$(METAWORLD),$(METAWORLD_OUT),$(METAWORLD_TABLE),instant_policy demo_replay,\
+		--env-type metaworld_pointcloud --out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME))
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)
