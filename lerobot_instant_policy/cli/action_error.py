@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 
 from ..data.demonstrations import DemonstrationError
 from ..evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N, ActionErrorError, action_error
@@ -84,23 +85,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def report(prog: str, compute: Callable[[], dict], json_only: bool) -> int:
+    """Run ``compute`` (an action-error result, this command's or the workbench sweep's) and print it as JSON, and
+    unless ``json_only`` :func:`summary_line` on stderr. Exit status: 2 where the inputs are refused, 1 where an
+    error is not finite, else 0."""
     try:
-        result = action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed, args.K,
-                              args.N, args.L, not args.no_untrained, args.repo_id, args.device,
-                              args.samples_per_prediction)
+        result = compute()
     except (ActionErrorError, EvaluationError, DemonstrationError, FileNotFoundError) as error:
-        print(f"{PROG}: error: {error}", file=sys.stderr)
+        print(f"{prog}: error: {error}", file=sys.stderr)
         return 2
     if not all(math.isfinite(v) for row in result["settings"] for v in row.values() if isinstance(v, float)):
-        print(f"{PROG}: error: non-finite errors {result['settings']}", file=sys.stderr)
+        print(f"{prog}: error: non-finite errors {result['settings']}", file=sys.stderr)
         return 1
     print(json.dumps(result, indent=2))
-    if not args.json:
+    if not json_only:
         print(summary_line(result), file=sys.stderr)
     return 0
 
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return report(PROG, lambda: action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed,
+                                             args.K, args.N, args.L, not args.no_untrained, args.repo_id, args.device,
+                                             args.samples_per_prediction), args.json)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -7,14 +7,10 @@ on stderr. One setting alone is the installed ``lerobot-ip-action-error``."""
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 
-from lerobot_instant_policy.cli.action_error import add_checkpoint_and_frames, add_prediction_and_output, summary_line
-from lerobot_instant_policy.data.demonstrations import DemonstrationError
-from lerobot_instant_policy.evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N, ActionErrorError
-from lerobot_instant_policy.evaluation.checkpoints import EvaluationError
+from lerobot_instant_policy.cli.action_error import add_checkpoint_and_frames, add_prediction_and_output, report
+from lerobot_instant_policy.evaluation.action_error import DEFAULT_K, DEFAULT_L, DEFAULT_N
 
 from ..action_error_sweep import DEFAULT_KS, DEFAULT_LS, DEFAULT_NS, action_error_sweep
 
@@ -57,21 +53,10 @@ def main(argv: list[str] | None = None) -> int:
     if len(args.default) != 3:
         print(f"{PROG}: error: --default takes K,N,L, got {args.default}", file=sys.stderr)
         return 2
-    try:
-        result = action_error_sweep(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed, args.K,
-                                    args.N, args.L, tuple(args.default), not args.no_untrained, args.repo_id,
-                                    args.device, args.samples_per_prediction)
-    except (ActionErrorError, EvaluationError, DemonstrationError, FileNotFoundError) as error:
-        print(f"{PROG}: error: {error}", file=sys.stderr)
-        return 2
-    if not all(math.isfinite(v) for row in result["settings"] for v in row.values() if isinstance(v, float)):
-        print(f"{PROG}: error: non-finite errors {result['settings']}", file=sys.stderr)
-        return 1
-    print(json.dumps(result, indent=2))
-    if not args.json:
-        print(summary_line(result), file=sys.stderr)
-    return 0
-
+    return report(PROG, lambda: action_error_sweep(args.policy_path, args.root, args.tasks, args.frames_per_task,
+                                                   args.seed, args.K, args.N, args.L, tuple(args.default),
+                                                   not args.no_untrained, args.repo_id, args.device,
+                                                   args.samples_per_prediction), args.json)
 
 if __name__ == "__main__":
     sys.exit(main())
