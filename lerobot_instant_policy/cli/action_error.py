@@ -109,5 +109,6 @@ def main(argv: list[str] | None = None) -> int:
                                              args.K, args.N, args.L, not args.no_untrained, args.repo_id, args.device,
                                              args.samples_per_prediction), args.json)
 
+
 if __name__ == "__main__":
     sys.exit(main())

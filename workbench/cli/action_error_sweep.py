@@ -58,5 +58,6 @@ def main(argv: list[str] | None = None) -> int:
                                                    not args.no_untrained, args.repo_id, args.device,
                                                    args.samples_per_prediction), args.json)
 
+
 if __name__ == "__main__":
     sys.exit(main())
