@@ -75,7 +75,9 @@ class StandingError(RuntimeError):
 @dataclass
 class StandingConfig:
     """One run of the standing training (module docstring). ``prior_samples`` / ``prior_tasks``: what the start
-    (``--start``, before any standing save exists) had already seen. ``device``: where the update runs;
+    (``--start``, before any standing save exists) had already seen. ``base_lr`` / ``weight_decay``: a study arm's
+    recipe, written into the resumed optimizer and scheduler (None: as the save holds them; the schedule's shape and
+    step go on unchanged, only its peak rate changes). ``device``: where the update runs;
     ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its CPU
     cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags."""
 
@@ -106,6 +108,8 @@ class StandingConfig:
     val_workers: int = 1
     prior_samples: int = 0
     prior_tasks: int = 0
+    base_lr: float | None = None
+    weight_decay: float | None = None
     lerobot_args: list[str] = field(default_factory=list)
 
     def validate(self) -> None:
@@ -119,6 +123,10 @@ class StandingConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.optimizer_lr <= 0:
             raise ValueError(f"optimizer_lr must be positive, got {self.optimizer_lr}")
+        if self.base_lr is not None and self.base_lr <= 0:
+            raise ValueError(f"base_lr must be positive, got {self.base_lr}")
+        if self.weight_decay is not None and self.weight_decay < 0:
+            raise ValueError(f"weight_decay must be non-negative, got {self.weight_decay}")
 
 
 # ---------------------------------------------------------------------------------------------------- saves
@@ -173,11 +181,39 @@ def train_command(config: StandingConfig, resume_from: Path | None, train_dir: P
             *config.lerobot_args]
 
 
-def _stage_resume(save: Path, train_dir: Path) -> Path:
-    """``save`` copied as a step checkpoint of ``train_dir`` (where LeRobot resumes it and saves after it)."""
+def _stage_resume(save: Path, train_dir: Path, base_lr: float | None = None,
+                  weight_decay: float | None = None) -> Path:
+    """``save`` copied as a step checkpoint of ``train_dir`` (where LeRobot resumes it and saves after it), with a
+    study arm's ``base_lr`` / ``weight_decay`` (None: unchanged) written where a resume reads them: the scheduler's
+    ``base_lrs`` (its lr is ``base_lr`` × the schedule's factor at the step) and the optimizer's param groups (their
+    ``lr`` scaled alike, ``initial_lr``, ``weight_decay``) and the saved train config (so later resumes keep them)."""
     staged = train_dir / "checkpoints" / f"{step_of(save):09d}"
     for part in (MODEL_DIR, STATE_DIR):
         shutil.copytree(save / part, staged / part)
+    if base_lr is None and weight_decay is None:
+        return staged
+    scheduler_path = staged / STATE_DIR / "scheduler_state.json"
+    scheduler = json.loads(scheduler_path.read_text())
+    groups_path = staged / STATE_DIR / "optimizer_param_groups.json"
+    groups = json.loads(groups_path.read_text())
+    config_path = staged / MODEL_DIR / "train_config.json"
+    train_config = json.loads(config_path.read_text())
+    if base_lr is not None:
+        for group, old_base in zip(groups, scheduler["base_lrs"], strict=True):
+            group["lr"] *= base_lr / old_base
+            group["initial_lr"] = base_lr
+        scheduler["base_lrs"] = [base_lr] * len(scheduler["base_lrs"])
+        scheduler["_last_lr"] = [group["lr"] for group in groups]
+        train_config["optimizer"]["lr"] = base_lr
+        train_config["policy"]["optimizer_lr"] = base_lr
+    if weight_decay is not None:
+        for group in groups:
+            group["weight_decay"] = weight_decay
+        train_config["optimizer"]["weight_decay"] = weight_decay
+        train_config["policy"]["optimizer_weight_decay"] = weight_decay
+    scheduler_path.write_text(json.dumps(scheduler, indent=4))
+    groups_path.write_text(json.dumps(groups, indent=4))
+    config_path.write_text(json.dumps(train_config, indent=4))
     return staged
 
 
@@ -286,7 +322,8 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     train_dir = work / f"run-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}"
     start = start_save(config, standing)
     previous = read_record(start) if start is not None else {"runs": []}
-    resume_from = _stage_resume(start, train_dir) if start is not None else None
+    resume_from = (_stage_resume(start, train_dir, config.base_lr, config.weight_decay)
+                   if start is not None else None)
     start_step = step_of(start) if start is not None else 0
     log_path = train_dir.with_suffix(".log")
     train_dir.mkdir(parents=True, exist_ok=True)

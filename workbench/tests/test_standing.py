@@ -11,6 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import pytest
+import torch
 
 import workbench.standing as standing_module
 from lerobot_instant_policy.evaluation.action_error import task_intervals
@@ -308,3 +309,40 @@ def test_the_trend_says_at_what_scale_each_figure_meets_its_aim_and_where_none_i
     curve.write_text(json.dumps({"points": points}))
     assert main(["--curve", str(curve), "trend", "--min-samples", "10000"]) == 0
     assert json.loads(capsys.readouterr().out)["moved_vs_holding_still"]["target"] == 0.5
+
+
+def test_a_study_arm_resumes_the_save_with_its_own_peak_rate_and_weight_decay(tmp_path):
+    """The arm's rate and decay reach the optimizer LeRobot rebuilds on resume, the schedule going on at its step."""
+    from lerobot.optim.optimizers import load_optimizer_state
+    from lerobot.optim.schedulers import load_scheduler_state
+    from torch.optim import AdamW
+    from torch.optim.lr_scheduler import LambdaLR
+
+    last = Path("checkpoints/stream/last")
+    save = tmp_path / "last"
+    for part in ("pretrained_model", "training_state"):
+        (save / part).mkdir(parents=True)
+    for source in (last / "training_state").iterdir():
+        (save / "training_state" / source.name).write_bytes(source.read_bytes())
+    (save / "pretrained_model" / "train_config.json").write_bytes((last / "pretrained_model" / "train_config.json")
+                                                                  .read_bytes())
+    saved_groups = json.loads((save / "training_state" / "optimizer_param_groups.json").read_text())
+    factor = saved_groups[0]["lr"] / saved_groups[0]["initial_lr"]  # the schedule's factor at the saved step
+
+    staged = standing_module._stage_resume(save, tmp_path / "run", base_lr=5e-4, weight_decay=0.1)
+    assert staged.name == f"{standing_module.step_of(save):09d}"
+    params = [torch.nn.Parameter(torch.zeros(1)) for _ in saved_groups[0]["params"]]
+    optimizer = AdamW(params, lr=2e-4, weight_decay=0.01, fused=True)  # as LeRobot builds them from the config, then loads
+    scheduler = LambdaLR(optimizer, lambda step: factor)
+    optimizer = load_optimizer_state(optimizer, staged / "training_state")
+    scheduler = load_scheduler_state(scheduler, staged / "training_state")
+    assert optimizer.param_groups[0]["weight_decay"] == 0.1
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(5e-4 * factor)
+    assert scheduler.base_lrs == [5e-4]
+    scheduler.step()
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(5e-4 * factor)  # the schedule's next rate: the arm's
+    train_config = json.loads((staged / "pretrained_model" / "train_config.json").read_text())
+    assert train_config["optimizer"]["lr"] == 5e-4 and train_config["policy"]["optimizer_weight_decay"] == 0.1
+    untouched = standing_module._stage_resume(save, tmp_path / "control")  # the control arm: the save as it is
+    assert (untouched / "training_state" / "scheduler_state.json").read_bytes() == \
+        (save / "training_state" / "scheduler_state.json").read_bytes()
