@@ -332,7 +332,8 @@ def test_a_study_arm_resumes_the_save_with_its_own_peak_rate_and_weight_decay(tm
     staged = standing_module._stage_resume(save, tmp_path / "run", base_lr=5e-4, weight_decay=0.1)
     assert staged.name == f"{standing_module.step_of(save):09d}"
     params = [torch.nn.Parameter(torch.zeros(1)) for _ in saved_groups[0]["params"]]
-    optimizer = AdamW(params, lr=2e-4, weight_decay=0.01, fused=True)  # as LeRobot builds them from the config, then loads
+    # built from the config as LeRobot builds them (the scheduler adds initial_lr), then loaded
+    optimizer = AdamW(params, lr=2e-4, weight_decay=0.01, fused=True)
     scheduler = LambdaLR(optimizer, lambda step: factor)
     optimizer = load_optimizer_state(optimizer, staged / "training_state")
     scheduler = load_scheduler_state(scheduler, staged / "training_state")
