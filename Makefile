@@ -73,9 +73,9 @@ train: train-data
 # ±45°, start roll ±15°, every gripper pose of a task ±30° about its approach); RUNG=1sb, 2sb: both (docs/results.md,
 # "Seventh follow-up"). RUNG=3sb, 4sb: rung 3 (grasp one object, place it relative to the second) and rung 4 (the
 # full generator) with bounded turns in one layout, 200 and 240 tasks x 4 demonstrations (docs/results.md, "Ninth
-# follow-up"). The rungs' generation configs are research presets, in workbench/configs/generate/; the held-out sets
-# of rung 4 (rung4_full_bounded_val.json, rung4_full_shared_bounded_val.json) stay in configs/generate/, where the
-# campaign, the standing run and results.md read them.
+# follow-up"). The rungs' generation configs are research presets, in workbench/configs/generate/; the validation sets
+# the campaign, the standing run and results.md read (val_moved_objects.json, val_one_layout.json: 96 pseudo-tasks
+# each, the first 24 those of rung 4's held-out sets) are in configs/generate/.
 RUNG ?= 1
 RUNG_NAMES = 1:rung1_reach 1s:rung1_reach_shared 1b:rung1_reach_bounded 1sb:rung1_reach_shared_bounded 2:rung2_reach_grip 2b:rung2_reach_grip_bounded 2sb:rung2_reach_grip_shared_bounded 3sb:rung3_grasp_place_shared_bounded \
 	4sb:rung4_full_shared_bounded
@@ -92,7 +92,7 @@ LADDER_FROM_CHECKPOINT = outputs/train/$(call rung_name,$(FROM))/checkpoints/las
 # gripper weight 0.01), trained in bfloat16 autocast.
 LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.use_amp=true)
 LADDER_CONFIGS = workbench/configs/generate
-LADDER_VAL_CONFIG = $(or $(wildcard $(LADDER_CONFIGS)/$(RUNG_NAME)_val.json),configs/generate/$(RUNG_NAME)_val.json)
+LADDER_VAL_CONFIG = $(LADDER_CONFIGS)/$(RUNG_NAME)_val.json
 ladder: $(INSTALLED)
 	test -d outputs/$(RUNG_NAME)_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
 		--config $(LADDER_VAL_CONFIG) $(if $(wildcard outputs/$(RUNG_NAME)_val/.shards),--resume,)
@@ -132,7 +132,7 @@ train-gpu: $(if $(TRAIN_PYTHON_ON_PATH),,$(INSTALLED))
 # the previous one trains, the fraction of one-layout tasks annealed 0.5 -> 0 over the first five rounds (objects
 # move between demonstrations afterwards, the paper's setting), 5,000 steps of batch 8 per round in bfloat16 autocast
 # (1.28x float32 measured on this AVX-512-bf16 CPU without AMX; compile 1.05x, not worth its 2 minutes per round).
-# Validation: 24 held-out moved-object pseudo-tasks (configs/generate/rung4_full_bounded_val.json). Stop it any time
+# Validation: 24 held-out moved-object pseudo-tasks (configs/generate/val_moved_objects.json). Stop it any time
 # and run it again to resume; raise --rounds to go on past the last. OpenMP waits passively: with generation, the
 # loader and other jobs on the 2 cores, spinning threads made a step take 7 s instead of 0.2 s. On a machine without
 # the first campaign's outputs/, continue from its committed step-15,000 weights (checkpoints/campaign_015000,

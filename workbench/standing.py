@@ -58,9 +58,10 @@ SHIPPED = Path("lerobot_instant_policy/assets/checkpoints/instant_policy")
 STANDING = Path("checkpoints/stream")
 CURVE_FILE = Path("docs/scaling_curve.json")
 VALIDATION_CONFIGS = {
-    "moved": "configs/generate/rung4_full_bounded_val.json",
-    "one_layout": "configs/generate/rung4_full_shared_bounded_val.json",
+    "moved": "configs/generate/val_moved_objects.json",
+    "one_layout": "configs/generate/val_one_layout.json",
 }
+RESULTS_DIR = "results"  # under a validation root: one checkpoint's results on its sets, by fingerprint
 RECORD = "standing.json"
 SHIPPED_RECORD = "shipped.json"
 SAVE_TAR = "save.tar"
@@ -103,7 +104,7 @@ class StandingConfig:
     save_freq: int = 500
     log_freq: int = 50
     nice: int = 10
-    val_tasks: int = 24
+    val_tasks: int = 96
     val_frames_per_task: int = 4
     val_workers: int = 1
     prior_samples: int = 0
@@ -265,9 +266,25 @@ def validation_record(results: dict) -> dict:
             "validation_per_task": {name: per_task(result) for name, result in results.items()}}
 
 
+def validation_key(config: StandingConfig) -> dict:
+    """What a validation result depends on besides the checkpoint: the sets' presets (SHA-256), their size, the
+    setting and the device."""
+    return {"presets_sha256": {name: hashlib.sha256(Path(preset).read_bytes()).hexdigest()
+                               for name, preset in VALIDATION_CONFIGS.items()},
+            "val_tasks": config.val_tasks, "val_frames_per_task": config.val_frames_per_task,
+            "setting": {"K": EVAL_K, "N": EVAL_N, "L": EVAL_L}, "device": config.device}
+
+
 def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
-    """``lerobot-ip-action-error``'s results for ``checkpoint`` (a pretrained_model folder) on both sets (set →
-    result)."""
+    """``lerobot-ip-action-error``'s results for ``checkpoint`` (a pretrained_model folder) on both sets under
+    ``root`` (set → result), cached in ``root/results/<fingerprint>.json`` with :func:`validation_key`: a checkpoint
+    already validated on the same sets in the same way is read back, not run again."""
+    key = {"checkpoint_sha256": checkpoint_fingerprint(checkpoint), **validation_key(config)}
+    cache = root / RESULTS_DIR / f"{key['checkpoint_sha256'][:24]}.json"
+    if cache.is_file():
+        cached = json.loads(cache.read_text())
+        if cached.get("key") == key:
+            return cached["results"]
     results = {}
     for name in VALIDATION_CONFIGS:
         command = program("lerobot-ip-action-error") + [
@@ -278,7 +295,35 @@ def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
         if done.returncode != 0:
             raise StandingError(f"validation on {name} failed: {done.stderr[-2000:]}")
         results[name] = json_result(done.stdout)
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    cache.write_text(json.dumps({"key": key, "checkpoint": str(checkpoint), "results": results}, indent=2))
     return results
+
+
+def model_dir(checkpoint: Path) -> Path:
+    """The pretrained_model folder of ``checkpoint``: itself, or the one inside a save (``FileNotFoundError``
+    naming it where there is none)."""
+    for candidate in (checkpoint, checkpoint / MODEL_DIR):
+        if (candidate / "config.json").is_file():
+            return candidate
+    raise FileNotFoundError(f"{checkpoint} is neither a pretrained_model folder nor a save holding one")
+
+
+def compare(config: StandingConfig, checkpoints: list[Path], root: Path) -> dict:
+    """Each of ``checkpoints`` (pretrained_model folders or saves) validated on both sets under ``root`` (generated
+    there first where missing; results cached, :func:`validate`), its figures (:func:`figures`) and, after the
+    first, its paired difference from the first (:func:`paired_against`: ``checkpoint − reference``, 95% intervals
+    over tasks). A study's arms are compared so, in a process of its own while training goes on."""
+    if not checkpoints:
+        raise ValueError("compare needs at least one checkpoint")
+    models = [model_dir(checkpoint) for checkpoint in checkpoints]
+    wait_for(validation_sets(config, root))
+    records = [validation_record(validate(config, model, root)) for model in models]
+    rows = [{"checkpoint": str(model), "validation": record["validation"],
+             "against_reference": paired_against(record, records[0]) if index else None}
+            for index, (model, record) in enumerate(zip(models, records))]
+    return {"reference": str(models[0]), "val_tasks": config.val_tasks,
+            "val_frames_per_task": config.val_frames_per_task, "checkpoints": rows}
 
 
 def shipped_validation(config: StandingConfig, root: Path, standing: Path = STANDING) -> dict:
@@ -286,11 +331,7 @@ def shipped_validation(config: StandingConfig, root: Path, standing: Path = STAN
     (:func:`validation_record`), with the ``key`` it was
     validated under: the SHA-256 of the checkpoint's files and of the sets' presets, the validation's size, setting
     and device. Cached in ``standing/shipped.json`` and validated again only when the key changes."""
-    key = {"checkpoint_sha256": checkpoint_fingerprint(SHIPPED),
-           "presets_sha256": {name: hashlib.sha256(Path(preset).read_bytes()).hexdigest()
-                              for name, preset in VALIDATION_CONFIGS.items()},
-           "val_tasks": config.val_tasks, "val_frames_per_task": config.val_frames_per_task,
-           "setting": {"K": EVAL_K, "N": EVAL_N, "L": EVAL_L}, "device": config.device}
+    key = {"checkpoint_sha256": checkpoint_fingerprint(SHIPPED), **validation_key(config)}
     cache = standing / SHIPPED_RECORD
     if cache.is_file():
         cached = json.loads(cache.read_text())

@@ -3,6 +3,8 @@
   run --hours 2.5                                   (here: continue checkpoints/stream/last on the CPU pool, nice)
   run --device cuda --generator-device cpu --generators 13 --batch-size 64 --out DIR   (a GPU lease: gpu_standing.sh)
   accept FOLDER                                     (here: keep what a lease brought back)
+  compare REFERENCE SAVE [SAVE ...]                 (a study's arms, paired on the validation sets, results cached)
+  average SAVE [SAVE ...] --out DIR                 (the mean of saves' weights, a pretrained_model to compare)
   trend --min-samples 140000                        (what the curve predicts, from its points since a recipe began)
 """
 
@@ -13,7 +15,8 @@ import json
 import sys
 from pathlib import Path
 
-from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, run, trend
+from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, compare, model_dir, run, trend
+from ..weight_average import write_average
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,6 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
                      help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")
     brought = commands.add_parser("accept", help="keep a run brought back from a device (save.tar, standing.json)")
     brought.add_argument("folder", type=Path)
+    paired = commands.add_parser("compare", help="validate checkpoints on both sets, each paired against the first")
+    paired.add_argument("checkpoints", type=Path, nargs="+", help="pretrained_model folders or saves holding one")
+    paired.add_argument("--work", default=defaults.work, help="its validation/ holds the sets and cached results")
+    paired.add_argument("--device", default=defaults.device)
+    for name in ("val_tasks", "val_frames_per_task", "val_workers"):
+        paired.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
+    mean = commands.add_parser("average", help="write the mean of saves' weights as a pretrained_model")
+    mean.add_argument("checkpoints", type=Path, nargs="+", help="pretrained_model folders or saves holding one")
+    mean.add_argument("--out", type=Path, required=True, help="a new folder for the averaged pretrained_model")
     predicted = commands.add_parser("trend", help="fit each figure against log samples, say where it meets the aim")
     predicted.add_argument("--min-samples", type=int, default=1,
                            help="fit only the points with at least these samples (one recipe's points)")
@@ -49,6 +61,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "accept":
             result = accept(args.folder, args.standing, args.curve)
+        elif args.command == "compare":
+            config = StandingConfig(work=args.work, device=args.device, val_tasks=args.val_tasks,
+                                    val_frames_per_task=args.val_frames_per_task, val_workers=args.val_workers)
+            config.validate()
+            result = compare(config, args.checkpoints, Path(args.work) / "validation")
+        elif args.command == "average":
+            models = [model_dir(checkpoint) for checkpoint in args.checkpoints]
+            result = {"out": str(write_average(models, args.out)), "averaged": [str(model) for model in models]}
         elif args.command == "trend":
             result = trend(json.loads(args.curve.read_text())["points"], args.min_samples)
         else:
@@ -57,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.hours is not None:
                 options["deadline_s"] = args.hours * 3600
             result = run(StandingConfig(**options), args.standing, args.curve)["runs"][-1]
-    except (StandingError, ValueError, FileNotFoundError) as error:
+    except (StandingError, ValueError, FileNotFoundError, FileExistsError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(result, indent=2))

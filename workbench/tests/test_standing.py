@@ -7,6 +7,7 @@ is due, a device's packed save kept the same way, what the curve predicts, and b
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import asdict
 from pathlib import Path
 
@@ -243,7 +244,7 @@ def test_the_shipped_checkpoint_is_validated_once_and_again_only_when_its_key_ch
     monkeypatch.setattr(standing_module, "validate", validate)
     config = StandingConfig()
     first = shipped_validation(config, tmp_path / "validation", tmp_path / "standing")
-    assert calls == [(standing_module.SHIPPED, 24)]
+    assert calls == [(standing_module.SHIPPED, 96)]
     assert first["validation"]["moved"] == figures(_action_error(0.9))
     assert first["key"]["checkpoint_sha256"] and set(first["key"]["presets_sha256"]) == {"moved", "one_layout"}
     again = shipped_validation(config, tmp_path / "validation", tmp_path / "standing")
@@ -347,3 +348,39 @@ def test_a_study_arm_resumes_the_save_with_its_own_peak_rate_and_weight_decay(tm
     untouched = standing_module._stage_resume(save, tmp_path / "control")  # the control arm: the save as it is
     assert (untouched / "training_state" / "scheduler_state.json").read_bytes() == \
         (save / "training_state" / "scheduler_state.json").read_bytes()
+
+
+def test_compare_validates_each_checkpoint_once_and_pairs_the_rest_against_the_first(tmp_path, monkeypatch,
+                                                                                     held_out_pseudo_tasks, capsys):
+    """A real validation (the shipped checkpoint, 2 held-out tasks × 1 frame on each set) is cached by the
+    checkpoint's contents: a copy elsewhere is read back, not run again, and pairs with the original at zero."""
+    from workbench.cli.standing import main
+
+    root = tmp_path / "work" / "validation"
+    root.mkdir(parents=True)
+    for name in standing_module.VALIDATION_CONFIGS:  # both sets: the session's held-out pseudo-tasks
+        (root / name).symlink_to(held_out_pseudo_tasks, target_is_directory=True)
+    copy = tmp_path / "copy" / "pretrained_model"
+    shutil.copytree(standing_module.SHIPPED, copy)
+    config = StandingConfig(work=str(tmp_path / "work"), val_tasks=2, val_frames_per_task=1)
+    runs = []
+    real_run = standing_module.subprocess.run
+    monkeypatch.setattr(standing_module.subprocess, "run", lambda *a, **k: runs.append(a) or real_run(*a, **k))
+    result = standing_module.compare(config, [standing_module.SHIPPED, copy.parent], root)
+    assert len(runs) == 2  # one lerobot-ip-action-error per set, for the first; the copy came from the cache
+    assert len(list((root / standing_module.RESULTS_DIR).glob("*.json"))) == 1
+    reference, other = result["checkpoints"]
+    assert reference["against_reference"] is None and other["checkpoint"] == str(copy)
+    for name in standing_module.VALIDATION_CONFIGS:
+        assert reference["validation"][name] == other["validation"][name]
+        assert other["against_reference"][name]["vs_holding_still"]["difference"] == 0.0
+        assert other["against_reference"][name]["clusters"] == 2
+    # the command line reads the same cache and prints the same comparison
+    assert main(["compare", str(standing_module.SHIPPED), str(copy), "--work", str(tmp_path / "work"),
+                 "--val-tasks", "2", "--val-frames-per-task", "1"]) == 0
+    assert json.loads(capsys.readouterr().out)["checkpoints"][1]["validation"] == other["validation"]
+    assert len(runs) == 2
+    with pytest.raises(FileNotFoundError, match="neither a pretrained_model folder"):
+        standing_module.compare(config, [tmp_path], root)
+    other_size = StandingConfig(work=str(tmp_path / "work"), val_tasks=1, val_frames_per_task=1)
+    assert standing_module.validation_key(other_size) != standing_module.validation_key(config)
