@@ -21,6 +21,11 @@ frames. Its state (:class:`~.policy.task_pool.PoolStats`: tasks received, sample
 index) is written beside every checkpoint's training state, ``training_state/task_pool.json``, by wrapping a third
 name, ``save_checkpoint``; this file is written after the rest of the checkpoint, so it marks a complete save.
 
+With an average decay (``--average.decay``) the run keeps a moving average of the trained weights
+(:class:`~.policy.weight_average.WeightAverage`), updated after every step by wrapping a fourth name,
+``update_policy``, and saved with each checkpoint (``training_state/weight_average.safetensors``, before the pool's
+state); a resumed run reads it back from the checkpoint it continues.
+
 A resumed run (``--resume=true``) starts its stream or pool past every task the checkpoint could have drawn: the
 pool's recorded ``next_task``, else :func:`resume_start_task`. Every process writes the stream it draws to
 ``OUTPUT_DIR/stream/process-R-from-task-S.json`` (the config, its rank and first task).
@@ -39,6 +44,7 @@ import torch
 
 from .contract import ACTION_KEY, POINTCLOUD_KEY, POINTCLOUD_NAMES, POSE_GRIPPER_NAMES, STATE_KEY
 from .policy.task_pool import EncoderSource, PoolConfig, TaskPool
+from .policy.weight_average import WeightAverage
 from .pseudo_demos.stream import PseudoTaskStream, StreamConfig
 
 STREAM_REPO_ID = "local/pseudo_task_stream"
@@ -193,10 +199,11 @@ def stream_accelerator_class():
     return StreamAccelerator
 
 
-def train(stream_config: StreamConfig, lerobot_argv: list[str], pool_config: PoolConfig | None = None) -> None:
+def train(stream_config: StreamConfig, lerobot_argv: list[str], pool_config: PoolConfig | None = None,
+          average_decay: float | None = None) -> None:
     """Run ``lerobot-train`` with ``lerobot_argv`` (its own flags; ``--dataset.repo_id`` and
-    ``--dataset.streaming`` are set here) on ``stream_config``'s stream, or on the task pool of ``pool_config``
-    (module docstring)."""
+    ``--dataset.streaming`` are set here) on ``stream_config``'s stream, or on the task pool of ``pool_config``,
+    keeping a moving average of the weights with ``average_decay`` (None: none; module docstring)."""
     import sys
 
     for flag in ("--dataset.repo_id", "--dataset.root", "--dataset.streaming"):
@@ -206,23 +213,41 @@ def train(stream_config: StreamConfig, lerobot_argv: list[str], pool_config: Poo
     from accelerate import PartialState
     from lerobot.scripts import lerobot_train
 
+    if average_decay is not None and not 0.0 < average_decay < 1.0:
+        raise ValueError(f"--average.decay must lie in (0, 1), got {average_decay}")
     made: list[StreamDataset] = []
+    resumed_from: list[Path | None] = []
+    averages: list[WeightAverage] = []
 
     def make_datasets(cfg):  # called after lerobot-train made its Accelerator: the process's place is known
+        resumed_from.append(Path(cfg.checkpoint_path) if cfg.resume else None)
         state = PartialState()
         dataset, _ = make_stream_datasets(cfg, stream_config, state.process_index, state.num_processes, pool_config)
         made.append(dataset)
         return dataset, None
 
-    save_checkpoint = lerobot_train.save_checkpoint
+    save_checkpoint, update_policy = lerobot_train.save_checkpoint, lerobot_train.update_policy
 
     def save_checkpoint_and_pool(checkpoint_dir, *args, **kwargs):
         save_checkpoint(checkpoint_dir, *args, **kwargs)
+        if averages:
+            averages[0].save(Path(checkpoint_dir) / "training_state")
         if made and isinstance(made[0].stream, TaskPool):
             write_pool_state(checkpoint_dir, made[0].stream)
 
+    def update_and_average(train_metrics, policy, batch, optimizer, grad_clip_norm, accelerator, *args, **kwargs):
+        result = update_policy(train_metrics, policy, batch, optimizer, grad_clip_norm, accelerator, *args, **kwargs)
+        model = accelerator.unwrap_model(policy)
+        if not averages:  # at the first step, from the weights the run started or resumed with
+            start = resumed_from[0] / "training_state" if resumed_from and resumed_from[0] is not None else None
+            averages.append(WeightAverage.resume(model, average_decay, start))
+        averages[0].update(model)
+        return result
+
     lerobot_train.make_train_eval_datasets = make_datasets
     lerobot_train.save_checkpoint = save_checkpoint_and_pool
+    if average_decay is not None:
+        lerobot_train.update_policy = update_and_average
     accelerate.Accelerator = stream_accelerator_class()
     sys.argv = ["lerobot-train", f"--dataset.repo_id={STREAM_REPO_ID}", "--dataset.streaming=true", *lerobot_argv]
     try:

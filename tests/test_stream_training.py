@@ -14,8 +14,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from safetensors import safe_open
 
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE, write_averaged_model
 from lerobot_instant_policy.stream_training import (
     POOL_STATE_FILE,
     RESUME_TASKS_PER_SAMPLE,
@@ -70,9 +72,10 @@ def test_lerobot_train_trains_on_the_stream_saves_loadable_checkpoints_and_resum
 
 def test_the_task_pool_trains_records_its_state_in_each_save_and_a_killed_run_resumes_past_its_tasks(tmp_path):
     """``--pool``: every save carries the pool's account; a run killed after its first save resumes from that save,
-    its pool starting past every task the save's run had received (nothing seen before is drawn again)."""
+    its pool starting past every task the save's run had received (nothing seen before is drawn again). With
+    ``--average.decay`` every save also carries the weights' moving average, which the resumed run goes on with."""
     out = tmp_path / "run"
-    pool_flags = ["--pool", "--pool.min_tasks=1", "--pool.capacity=4"]
+    pool_flags = ["--pool", "--pool.min_tasks=1", "--pool.capacity=4", "--average.decay=0.5"]
     run = _train(tmp_path, *POLICY_FLAGS, *pool_flags, "--steps=4", f"--output_dir={out}")
     assert run.returncode == 0, run.stderr[-3000:]
     assert "training on the pseudo-task pool from task 0 (process 0 of 1)" in run.stdout + run.stderr
@@ -92,6 +95,17 @@ def test_the_task_pool_trains_records_its_state_in_each_save_and_a_killed_run_re
     state = json.loads((out / "checkpoints" / "000003" / "training_state" / POOL_STATE_FILE).read_text())
     assert state["start_task"] == next_task and state["stats"]["samples"] == 2  # one step past the save
     assert pool_start_task(first_save, batch_size=2, world_size=1) == next_task
+
+    for step, updates in ((2, 2), (3, 3)):  # the resumed average went on from the save's, one update a step
+        with safe_open(str(out / "checkpoints" / f"{step:06d}" / "training_state" / AVERAGE_FILE), "pt") as handle:
+            assert handle.metadata() == {"decay": "0.5", "updates": str(updates)}
+    raw = InstantPolicyPolicy.from_pretrained(out / "checkpoints" / "000003" / "pretrained_model")
+    averaged = InstantPolicyPolicy.from_pretrained(write_averaged_model(out / "checkpoints" / "000003",
+                                                                       tmp_path / "average"))
+    trained = {name for name, parameter in raw.named_parameters() if parameter.requires_grad}
+    raw_tensors, averaged_tensors = raw.state_dict(), averaged.state_dict()
+    assert any(not torch.equal(raw_tensors[name], averaged_tensors[name]) for name in trained)
+    assert all(torch.equal(raw_tensors[name], averaged_tensors[name]) for name in raw_tensors if name not in trained)
 
 
 def test_flags_the_stream_sets_are_refused_and_a_missing_config_is_named(tmp_path, capsys):

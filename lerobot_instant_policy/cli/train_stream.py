@@ -11,8 +11,9 @@ and rendered as training goes, from the distributions of a ``lerobot-ip-generate
       --stream.samples_per_task 8 --policy.type=instant_policy --policy.device=cpu --batch_size=8 ... (the rolling
       pool of encoded fresh tasks: generator processes render and encode, the update reads encoded frames)
 
-Every flag not of ``--stream.`` or ``--pool`` goes to ``lerobot-train`` as it is (``--policy.*``, ``--steps``,
-``--resume`` …); ``--dataset.*`` is the stream's.
+``--average.decay 0.999`` keeps a moving average of the trained weights beside the run (``policy.weight_average``).
+Every flag not of ``--stream.``, ``--pool`` or ``--average.`` goes to ``lerobot-train`` as it is (``--policy.*``,
+``--steps``, ``--resume`` …); ``--dataset.*`` is the stream's.
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
                             help=f"{help_text} (default {getattr(defaults, name)})")
     parser.add_argument("--pool.device", dest="pool_device", default=defaults.device,
                         help="where the generators render and encode: cpu or cuda (default cpu)")
+    parser.add_argument("--average.decay", dest="average_decay", type=float,
+                        help="keep a moving average of the trained weights with this decay in (0, 1), saved with each "
+                             "checkpoint (training_state/weight_average.safetensors; default: none)")
     return parser
 
 
@@ -79,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     args, lerobot_argv = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
     try:
         config = stream_config_from_args(args)
-        train(config, lerobot_argv, pool_config_from_args(args, config))
+        train(config, lerobot_argv, pool_config_from_args(args, config), args.average_decay)
     except (ValueError, FileNotFoundError) as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)
         return 2

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, compare, model_dir, run, trend
-from ..weight_average import write_average
+from ..tail_average import write_average
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -5,21 +5,22 @@ A run at a near-constant learning rate leaves its weights wandering about a mini
 mean of its saves over a window (a tail average, as stochastic weight averaging takes) lies nearer the minimum than
 any one of them when that wandering, not the minimum's own progress, dominates the error. The saves are LeRobot step
 checkpoints ``save_freq`` steps apart, so a tail of k saves averages a window of about k × ``save_freq`` steps: the
-window an exponential moving average with decay ``1 − 1 / window`` would hold. Comparing tails of several lengths,
-paired against the last save on the validation sets, measures which window (hence which decay) reads out the most.
+window an exponential moving average with decay ``1 − 1 / window`` would hold (the average a run keeps while it
+trains, :mod:`lerobot_instant_policy.policy.weight_average`). Comparing tails of several lengths, paired against the
+last save on the validation sets, measures which window (hence which decay) reads out the most.
 
 ``python -m workbench.cli.standing average SAVE [SAVE ...] --out DIR``.
 """
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
-WEIGHTS = "model.safetensors"
+from lerobot_instant_policy.policy.weight_average import WEIGHTS_FILE as WEIGHTS
+from lerobot_instant_policy.policy.weight_average import write_model
 
 
 class AverageError(ValueError):
@@ -49,15 +50,9 @@ def average_weights(models: list[Path]) -> dict[str, torch.Tensor]:
 
 
 def write_average(models: list[Path], out: Path) -> Path:
-    """:func:`average_weights` of ``models`` written to ``out`` as a pretrained_model folder: the last model's
-    config and processors beside the averaged weights. Refuses an ``out`` that exists (``FileExistsError``) or is
-    one of the models; writes to a sibling first, so a failure leaves no half folder. Returns ``out``."""
+    """:func:`average_weights` of ``models`` written to ``out`` as a pretrained_model folder beside the last model's
+    config and processors (:func:`~lerobot_instant_policy.policy.weight_average.write_model`: ``FileExistsError``
+    where ``out`` exists, no half folder on a failure). Returns ``out``."""
     if out.exists():
-        raise FileExistsError(f"{out} exists: choose a new folder for the average")
-    averaged = average_weights(models)
-    building = out.with_name(out.name + ".building")
-    shutil.rmtree(building, ignore_errors=True)
-    shutil.copytree(models[-1], building, ignore=shutil.ignore_patterns(WEIGHTS))
-    save_file(averaged, str(building / WEIGHTS))
-    building.rename(out)
-    return out
+        raise FileExistsError(f"{out} exists: choose a new folder")
+    return write_model(models[-1], average_weights(models), out)

@@ -1,4 +1,4 @@
-"""Averaging saves' weights (``workbench.weight_average``): the mean of floating-point tensors, integer buffers from
+"""Averaging saves' weights (``workbench.tail_average``): the mean of floating-point tensors, integer buffers from
 the last save, a folder LeRobot loads as the shipped checkpoint's twin, mismatched saves refused and nothing half
 written."""
 
@@ -12,7 +12,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from workbench.standing import SHIPPED
-from workbench.weight_average import WEIGHTS, AverageError, average_weights, write_average
+from workbench.tail_average import WEIGHTS, AverageError, average_weights, write_average
 
 
 def _model(folder, scale: float, step: int, extra: str | None = None):
