@@ -53,7 +53,7 @@ def require(observation: dict, key: str, step: str, ndim: int, shape_text: str) 
     return value
 
 
-class _CloudSegmentationStep(ObservationProcessorStep):
+class CloudSegmentationStep(ObservationProcessorStep):
     """A step that clears ``pointcloud_mask`` where ``keep(points (P, 3), observation, row)`` is False."""
 
     def observation(self, observation: dict) -> dict:
@@ -188,7 +188,7 @@ class DepthToPointCloudStep(ObservationProcessorStep):
 
 @ProcessorStepRegistry.register(name="ip_crop_workspace")
 @dataclass
-class CropWorkspaceStep(_CloudSegmentationStep):
+class CropWorkspaceStep(CloudSegmentationStep):
     """Keep the points inside the world-frame box ``[low, high]`` (m)."""
 
     low: tuple[float, float, float] = (0.15, -0.5, -0.05)
@@ -200,7 +200,7 @@ class CropWorkspaceStep(_CloudSegmentationStep):
 
 @ProcessorStepRegistry.register(name="ip_remove_table_plane")
 @dataclass
-class RemoveTablePlaneStep(_CloudSegmentationStep):
+class RemoveTablePlaneStep(CloudSegmentationStep):
     """Fit the table as the largest near-horizontal plane (RANSAC) and keep only the points more than
     ``distance_threshold`` (m) above it. A plane holding less than ``min_inlier_fraction`` of the points is not
     taken for the table (nothing is removed)."""
@@ -222,7 +222,7 @@ class RemoveTablePlaneStep(_CloudSegmentationStep):
 
 @ProcessorStepRegistry.register(name="ip_remove_robot")
 @dataclass
-class RemoveRobotStep(_CloudSegmentationStep):
+class RemoveRobotStep(CloudSegmentationStep):
     """Remove points within ``margin`` (m) of the robot's links, posed by ``joint_positions (B, J)`` through the
     URDF at ``urdf_path`` (``joint_names``: the URDF joints of the state vector, in order)."""
 
@@ -241,7 +241,7 @@ class RemoveRobotStep(_CloudSegmentationStep):
 
 @ProcessorStepRegistry.register(name="ip_remove_gripper")
 @dataclass
-class RemoveGripperStep(_CloudSegmentationStep):
+class RemoveGripperStep(CloudSegmentationStep):
     """Remove points inside the box ``[low, high]`` of the EE frame (the hand), posed by ``observation.state``
     (EE xyz, quaternion xyzw, gripper): robot removal for datasets with a Cartesian state and no joint state.
 
