@@ -16,10 +16,12 @@ run's new start, the best save kept apart for shipping, and a point on the scali
    beside it unless present;
 3. at ``deadline_s − validate_s`` stops training (a kill loses at most the steps since the last save) and takes its
    last complete save (one with the pool's state, written last), which it validates with ``lerobot-ip-action-error``
-   (K = 4, N = 2, L = 10, ``val_tasks`` × ``val_frames_per_task`` frames) on both sets;
+   (K = 4, N = 2, L = 10, ``val_tasks`` × ``val_frames_per_task`` frames) on both sets, and with ``average_decay``
+   the moving average of its weights too (:func:`validate_average`);
 4. keeps it (:func:`keep`): the save replaces ``checkpoints/stream/last/`` whether or not it is better (a metric may
-   dip before it improves), its weights replace ``checkpoints/stream/best/`` only when closer than the best's to the
-   actions, relative to holding still, on both sets (the point estimates), and its point joins
+   dip before it improves), its weights (or their average, where that validated closer on both sets:
+   :func:`readout`) replace ``checkpoints/stream/best/`` only when closer than the best's to the actions, relative to
+   holding still, on both sets (the point estimates), and its point (the raw weights') joins
    ``docs/scaling_curve.{json,png}`` (the figures with their 95% intervals over tasks, drawn as error bars).
    ``standing.json`` in the save holds every run so far: samples and distinct tasks (this run's and in all), the
    pool's rates and uses per task, the figures with their intervals, the per-task errors behind them and, once a
@@ -50,6 +52,7 @@ from pathlib import Path
 
 from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionErrorError, paired_ratio_difference
 from lerobot_instant_policy.evaluation.manifest import checkpoint_fingerprint
+from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE, write_averaged_model
 
 from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
 
@@ -67,6 +70,7 @@ SHIPPED_RECORD = "shipped.json"
 SAVE_TAR = "save.tar"
 POOL_STATE = "training_state/task_pool.json"  # written after the rest of a save: its presence marks a complete one
 MODEL_DIR, STATE_DIR = "pretrained_model", "training_state"
+AVERAGE_MODEL_DIR = "pretrained_model_average"  # a save's moving average as a pretrained_model, when it keeps one
 
 
 class StandingError(RuntimeError):
@@ -78,7 +82,8 @@ class StandingConfig:
     """One run of the standing training (module docstring). ``prior_samples`` / ``prior_tasks``: what the start
     (``--start``, before any standing save exists) had already seen. ``base_lr`` / ``weight_decay``: a study arm's
     recipe, written into the resumed optimizer and scheduler (None: as the save holds them; the schedule's shape and
-    step go on unchanged, only its peak rate changes). ``device``: where the update runs;
+    step go on unchanged, only its peak rate changes). ``average_decay``: keep a moving average of the weights
+    (``lerobot-ip-train --average.decay``), validated beside the raw weights. ``device``: where the update runs;
     ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its CPU
     cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags."""
 
@@ -111,6 +116,7 @@ class StandingConfig:
     prior_tasks: int = 0
     base_lr: float | None = None
     weight_decay: float | None = None
+    average_decay: float | None = None
     lerobot_args: list[str] = field(default_factory=list)
 
     def validate(self) -> None:
@@ -128,6 +134,8 @@ class StandingConfig:
             raise ValueError(f"base_lr must be positive, got {self.base_lr}")
         if self.weight_decay is not None and self.weight_decay < 0:
             raise ValueError(f"weight_decay must be non-negative, got {self.weight_decay}")
+        if self.average_decay is not None and not 0 < self.average_decay < 1:
+            raise ValueError(f"average_decay must lie in (0, 1), got {self.average_decay}")
 
 
 # ---------------------------------------------------------------------------------------------------- saves
@@ -179,6 +187,7 @@ def train_command(config: StandingConfig, resume_from: Path | None, train_dir: P
                  "--wandb.enable=false", "--num_workers=0"]
     return [*program("lerobot-ip-train"), *stream, *start, f"--policy.device={config.device}",
             f"--output_dir={train_dir}", f"--save_freq={config.save_freq}", f"--log_freq={config.log_freq}",
+            *([f"--average.decay={config.average_decay}"] if config.average_decay is not None else []),
             *config.lerobot_args]
 
 
@@ -353,6 +362,28 @@ def compare_with_shipped(config: StandingConfig, entry: dict, root: Path, standi
         return {name: {"not_compared": str(error)} for name in VALIDATION_CONFIGS}
 
 
+def validate_average(config: StandingConfig, save: Path, entry: dict, root: Path, standing: Path = STANDING) -> dict:
+    """The moving average a save holds (``training_state/weight_average.safetensors``) as a pretrained_model
+    (``save/pretrained_model_average``), validated as the raw weights were (``entry``: the run's record so far):
+    its :func:`validation_record`, ``against_raw`` (average − raw, paired) and ``against_shipped``."""
+    averaged = write_averaged_model(save, save / AVERAGE_MODEL_DIR)
+    record = validation_record(validate(config, averaged, root))
+    return {**record, "against_raw": paired_against(record, entry),
+            "against_shipped": compare_with_shipped(config, record, root, standing)}
+
+
+def readout(entry: dict) -> dict:
+    """What a run offers as its best: its raw weights' record, or, where its moving average validated closer to the
+    actions than the raw weights on both sets (:func:`beats`), the record with the average's figures in their place
+    and ``readout: "average"``."""
+    average = entry.get("average")
+    if average is None or not beats(average["validation"], entry["validation"]):
+        return {**entry, "readout": "raw"}
+    chosen = {key: value for key, value in entry.items() if key != "average"}
+    return {**chosen, **{key: average[key] for key in ("validation", "validation_per_task", "against_shipped")},
+            "readout": "average"}
+
+
 # ---------------------------------------------------------------------------------------------------- one run
 def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -> dict:
     """One run (module docstring); returns its record (what the save's ``standing.json`` holds, last run last)."""
@@ -400,6 +431,8 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         "hidden_dim": json.loads((save / MODEL_DIR / "config.json").read_text())["hidden_dim"],
     }
     entry["against_shipped"] = compare_with_shipped(config, entry, work / "validation", standing)
+    if (save / STATE_DIR / AVERAGE_FILE).is_file():
+        entry["average"] = validate_average(config, save, entry, work / "validation", standing)
     record = {"runs": [*previous["runs"], entry]}
     (save / RECORD).write_text(json.dumps(record, indent=2))
     if config.out:
@@ -462,10 +495,11 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     entry = record["runs"][-1]
     last, best = standing / "last", standing / "best"
     previous_best = read_record(best)["runs"][-1] if (best / RECORD).is_file() else None
+    candidate = readout(entry)
     if previous_best is not None:
-        entry["against_best"] = against_best(entry, previous_best)
-    kept = beats(entry["validation"], previous_best["validation"] if previous_best is not None else None)
-    entry["best_beats_shipped"] = beats_shipped(entry if kept else previous_best)
+        entry["against_best"] = candidate["against_best"] = against_best(candidate, previous_best)
+    kept = beats(candidate["validation"], previous_best["validation"] if previous_best is not None else None)
+    entry["best_beats_shipped"] = candidate["best_beats_shipped"] = beats_shipped(candidate if kept else previous_best)
     staging = standing / ".last-new"
     shutil.rmtree(staging, ignore_errors=True)
     for part in (MODEL_DIR, STATE_DIR):
@@ -475,8 +509,12 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     staging.rename(last)  # the old last save stays whole until the new one is complete
     if kept:
         shutil.rmtree(best, ignore_errors=True)
-        shutil.copytree(save / MODEL_DIR, best / MODEL_DIR)
-        (best / RECORD).write_text(json.dumps({"runs": [entry]}, indent=2))
+        best.mkdir(parents=True)
+        if candidate["readout"] == "average":
+            write_averaged_model(save, best / MODEL_DIR)
+        else:
+            shutil.copytree(save / MODEL_DIR, best / MODEL_DIR)
+        (best / RECORD).write_text(json.dumps({"runs": [candidate]}, indent=2))
     point = curve_point(entry["samples_total"], entry["tasks_total"], entry["hidden_dim"], entry["device"],
                         entry["validation"], entry["config"]["val_tasks"], entry["config"]["val_frames_per_task"],
                         kept, f"standing run from step {entry['start_step']} to {entry['end_step']}, "

@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     one.add_argument("--hours", type=float, help="the deadline in hours (instead of --deadline-s)")
     for name in ("work", "out", "start", "stream_config", "device", "generator_device"):
         one.add_argument(f"--{name.replace('_', '-')}", default=getattr(defaults, name))
-    for name in ("deadline_s", "validate_s", "optimizer_lr", "base_lr", "weight_decay"):
+    for name in ("deadline_s", "validate_s", "optimizer_lr", "base_lr", "weight_decay", "average_decay"):
         one.add_argument(f"--{name.replace('_', '-')}", type=float, default=getattr(defaults, name))
     for name in ("seed", "batch_size", "samples_per_task", "tasks_per_render", "surface_samples", "capacity",
                  "min_tasks", "generators",

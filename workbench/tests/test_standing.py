@@ -384,3 +384,44 @@ def test_compare_validates_each_checkpoint_once_and_pairs_the_rest_against_the_f
         standing_module.compare(config, [tmp_path], root)
     other_size = StandingConfig(work=str(tmp_path / "work"), val_tasks=1, val_frames_per_task=1)
     assert standing_module.validation_key(other_size) != standing_module.validation_key(config)
+
+
+def test_the_best_holds_the_moving_average_where_it_validated_closer_than_the_raw_weights(tmp_path):
+    """A run that kept a moving average offers whichever of its raw weights and their average validated closer on
+    both sets; the last save keeps the raw weights (the run continues them) and the average in its training state."""
+    from safetensors.torch import load_file, save_file
+
+    from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE
+
+    def save_with_average(step: int, raw_value: float, average_value: float, moved: float, average_moved: float,
+                          layout: float = 0.6):
+        save = _save(tmp_path / "run", step)
+        save_file({"w": torch.full((2,), raw_value), "frozen": torch.zeros(1)},
+                  str(save / "pretrained_model" / "model.safetensors"))
+        save_file({"w": torch.full((2,), average_value)}, str(save / "training_state" / AVERAGE_FILE),
+                  metadata={"decay": "0.999", "updates": str(step)})
+        entry = _entry(moved, layout, step * 8, per_task_kept=True)
+        average = _entry(average_moved, layout - 0.02, step * 8, per_task_kept=True)
+        entry["average"] = {key: average[key] for key in ("validation", "validation_per_task")}
+        entry["average"]["against_shipped"] = {}
+        (save / RECORD).write_text(json.dumps({"runs": [entry]}))
+        return save
+
+    def weights(folder: Path) -> torch.Tensor:
+        return load_file(folder / "pretrained_model" / "model.safetensors")["w"]
+
+    standing, curve = tmp_path / "standing", tmp_path / "curve.json"
+    first = keep(save_with_average(100, 1.0, 3.0, 0.9, 0.85), standing, curve)  # the average closer on both sets
+    assert first["best"]
+    assert torch.equal(weights(standing / "best"), torch.full((2,), 3.0))
+    best_entry = read_record(standing / "best")["runs"][-1]
+    assert best_entry["readout"] == "average"
+    assert best_entry["validation"]["moved"]["vs_holding_still"] == pytest.approx(0.85, abs=0.01)
+    assert torch.equal(weights(standing / "last"), torch.full((2,), 1.0))
+    assert (standing / "last" / "training_state" / AVERAGE_FILE).is_file()
+    assert json.loads(curve.read_text())["points"][-1]["moved_vs_holding_still"] == pytest.approx(0.9, abs=0.01)  # raw
+    # an average worse than its raw weights on one set: the raw weights are the run's offer
+    second = keep(save_with_average(200, 5.0, 7.0, 0.8, 0.95, layout=0.55), standing, curve)
+    assert second["best"] and read_record(standing / "best")["runs"][-1]["readout"] == "raw"
+    assert torch.equal(weights(standing / "best"), torch.full((2,), 5.0))
+    assert second["against_best"]["moved"]["vs_holding_still"]["b"] == pytest.approx(0.85, abs=0.01)
