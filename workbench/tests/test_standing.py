@@ -365,9 +365,10 @@ def test_compare_validates_each_checkpoint_once_and_pairs_the_rest_against_the_f
     config = StandingConfig(work=str(tmp_path / "work"), val_tasks=2, val_frames_per_task=1)
     runs = []
     real_run = standing_module.subprocess.run
-    monkeypatch.setattr(standing_module.subprocess, "run", lambda *a, **k: runs.append(a) or real_run(*a, **k))
+    monkeypatch.setattr(standing_module.subprocess, "run", lambda *a, **k: runs.append(k) or real_run(*a, **k))
     result = standing_module.compare(config, [standing_module.SHIPPED, copy.parent], root)
     assert len(runs) == 2  # one lerobot-ip-action-error per set, for the first; the copy came from the cache
+    assert all(run["env"]["OMP_NUM_THREADS"] == "1" for run in runs)  # one thread beside the training
     assert len(list((root / standing_module.RESULTS_DIR).glob("*.json"))) == 1
     reference, other = result["checkpoints"]
     assert reference["against_reference"] is None and other["checkpoint"] == str(copy)
