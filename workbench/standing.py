@@ -400,10 +400,8 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     work = Path(config.work)
     train_dir = work / f"run-{datetime.now(timezone.utc):%Y%m%dT%H%M%S}"
     start = start_save(config, standing)
-    previous = read_record(start) if start is not None else {"runs": []}
     resume_from = (_stage_resume(start, train_dir, config.base_lr, config.weight_decay)
                    if start is not None else None)
-    start_step = step_of(start) if start is not None else 0
     log_path = train_dir.with_suffix(".log")
     train_dir.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "OMP_NUM_THREADS": str(config.train_threads), "HF_HUB_OFFLINE": "1"}
@@ -418,11 +416,27 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     if training.poll() is None:
         os.killpg(training.pid, signal.SIGTERM)
         training.wait(timeout=120)
+    return conclude(config, train_dir, start, started_at, started, standing, curve_file, generating)
+
+
+def conclude(config: StandingConfig, train_dir: Path, start: Path | None, started_at: str, started: float,
+             standing: Path = STANDING, curve_file: Path = CURVE_FILE,
+             generating: dict[str, subprocess.Popen | None] | None = None) -> dict:
+    """What a run does once its training has stopped: validate the last complete save under ``train_dir`` (not the
+    resumed ``start`` staged there) on the sets under ``config.work``'s ``validation/`` (``generating``: their
+    generation still under way), record it after ``start``'s record (``started_at``, and ``started``: the
+    ``time.monotonic()`` of the start, for its wall time) and keep or pack it. ``python -m workbench.cli.standing
+    conclude TRAIN_DIR`` runs it for a run whose process stopped before it did. Returns the record."""
+    work = Path(config.work)
+    previous = read_record(start) if start is not None else {"runs": []}
+    start_step = step_of(start) if start is not None else 0
+    resume_from = train_dir / "checkpoints" / f"{start_step:09d}" if start is not None else None
+    log_path = train_dir.with_suffix(".log")
     saves = [save for save in complete_saves(train_dir) if save != resume_from]
     if not saves:
         raise StandingError(f"no save completed before the deadline; training log:\n{log_path.read_text()[-3000:]}")
     save = saves[-1]
-    wait_for(generating)
+    wait_for(generating if generating is not None else validation_sets(config, work / "validation"))
     results = validate(config, save / MODEL_DIR, work / "validation")
     pool = json.loads((save / POOL_STATE).read_text())["stats"]
     steps = step_of(save) - start_step
@@ -448,6 +462,18 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
         keep(save, standing, curve_file)
         record = read_record(standing / "last")
     return record
+
+
+def conclude_stopped(config: StandingConfig, train_dir: Path, standing: Path = STANDING,
+                     curve_file: Path = CURVE_FILE) -> dict:
+    """:func:`conclude` for a run whose process stopped before it did (killed, or its session ended): the start is
+    the save it resumed (the standing run's last, as :func:`start_save` finds it before the run is kept), the start
+    time the one its folder is named after (``run-YYYYmmddTHHMMSS``, UTC)."""
+    config.validate()
+    started = datetime.strptime(train_dir.name, "run-%Y%m%dT%H%M%S").replace(tzinfo=timezone.utc)
+    elapsed = (datetime.now(timezone.utc) - started).total_seconds()
+    return conclude(config, train_dir, start_save(config, standing), started.isoformat(timespec="seconds"),
+                    time.monotonic() - elapsed, standing, curve_file)
 
 
 # ---------------------------------------------------------------------------------------------------- keeping

@@ -3,6 +3,7 @@
   run --hours 2.5                                   (here: continue checkpoints/stream/last on the CPU pool, nice)
   run --device cuda --generator-device cpu --generators 13 --batch-size 64 --out DIR   (a GPU lease: gpu_standing.sh)
   accept FOLDER                                     (here: keep what a lease brought back)
+  conclude outputs/standing/run-<UTC start> [--hours 2.5 ...]   (a run whose process stopped before it kept its save)
   compare REFERENCE SAVE [SAVE ...]                 (a study's arms, paired on the validation sets, results cached)
   average SAVE [SAVE ...] --out DIR                 (the mean of saves' weights, a pretrained_model to compare)
   trend --min-samples 140000                        (what the curve predicts, from its points since a recipe began)
@@ -15,8 +16,37 @@ import json
 import sys
 from pathlib import Path
 
-from ..standing import CURVE_FILE, PROG, STANDING, StandingConfig, StandingError, accept, compare, model_dir, run, trend
+from ..standing import (
+    CURVE_FILE,
+    PROG,
+    STANDING,
+    StandingConfig,
+    StandingError,
+    accept,
+    compare,
+    conclude_stopped,
+    model_dir,
+    run,
+    trend,
+)
 from ..tail_average import write_average
+
+
+def add_run_options(command: argparse.ArgumentParser, defaults: StandingConfig) -> None:
+    """The options of a run (:class:`StandingConfig`'s fields): ``run`` trains with them, ``conclude`` records
+    them as the run's."""
+    command.add_argument("--hours", type=float, help="the deadline in hours (instead of --deadline-s)")
+    for name in ("work", "out", "start", "stream_config", "device", "generator_device"):
+        command.add_argument(f"--{name.replace('_', '-')}", default=getattr(defaults, name))
+    for name in ("deadline_s", "validate_s", "optimizer_lr", "base_lr", "weight_decay", "average_decay"):
+        command.add_argument(f"--{name.replace('_', '-')}", type=float, default=getattr(defaults, name))
+    for name in ("seed", "batch_size", "samples_per_task", "tasks_per_render", "surface_samples", "capacity",
+                 "min_tasks", "generators",
+                 "generator_threads", "train_threads", "save_freq", "log_freq", "nice", "val_tasks",
+                 "val_frames_per_task", "val_workers", "prior_samples", "prior_tasks"):
+        command.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
+    command.add_argument("--lerobot-arg", dest="lerobot_args", action="append", default=[], metavar="FLAG",
+                         help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,20 +54,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--standing", type=Path, default=STANDING, help="where the last and best saves live")
     parser.add_argument("--curve", type=Path, default=CURVE_FILE, help="the scaling curve's JSON (its picture beside)")
     commands = parser.add_subparsers(dest="command", required=True)
-    one = commands.add_parser("run", help="continue the standing run to a deadline, validate, keep")
     defaults = StandingConfig()
-    one.add_argument("--hours", type=float, help="the deadline in hours (instead of --deadline-s)")
-    for name in ("work", "out", "start", "stream_config", "device", "generator_device"):
-        one.add_argument(f"--{name.replace('_', '-')}", default=getattr(defaults, name))
-    for name in ("deadline_s", "validate_s", "optimizer_lr", "base_lr", "weight_decay", "average_decay"):
-        one.add_argument(f"--{name.replace('_', '-')}", type=float, default=getattr(defaults, name))
-    for name in ("seed", "batch_size", "samples_per_task", "tasks_per_render", "surface_samples", "capacity",
-                 "min_tasks", "generators",
-                 "generator_threads", "train_threads", "save_freq", "log_freq", "nice", "val_tasks",
-                 "val_frames_per_task", "val_workers", "prior_samples", "prior_tasks"):
-        one.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
-    one.add_argument("--lerobot-arg", dest="lerobot_args", action="append", default=[], metavar="FLAG",
-                     help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")
+    one = commands.add_parser("run", help="continue the standing run to a deadline, validate, keep")
+    ended = commands.add_parser("conclude", help="validate, record and keep a run whose process stopped before it did")
+    ended.add_argument("train_dir", type=Path, help="the run's folder, outputs/standing/run-<UTC start>")
+    for command in (one, ended):
+        add_run_options(command, defaults)
     brought = commands.add_parser("accept", help="keep a run brought back from a device (save.tar, standing.json)")
     brought.add_argument("folder", type=Path)
     paired = commands.add_parser("compare", help="validate checkpoints on both sets, each paired against the first")
@@ -73,10 +95,14 @@ def main(argv: list[str] | None = None) -> int:
             result = trend(json.loads(args.curve.read_text())["points"], args.min_samples)
         else:
             options = {key: value for key, value in vars(args).items()
-                       if key not in ("command", "hours", "standing", "curve")}
+                       if key not in ("command", "hours", "standing", "curve", "train_dir")}
             if args.hours is not None:
                 options["deadline_s"] = args.hours * 3600
-            result = run(StandingConfig(**options), args.standing, args.curve)["runs"][-1]
+            config = StandingConfig(**options)
+            if args.command == "conclude":
+                result = conclude_stopped(config, args.train_dir, args.standing, args.curve)["runs"][-1]
+            else:
+                result = run(config, args.standing, args.curve)["runs"][-1]
     except (StandingError, ValueError, FileNotFoundError, FileExistsError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2

@@ -426,3 +426,30 @@ def test_the_best_holds_the_moving_average_where_it_validated_closer_than_the_ra
     assert second["best"] and read_record(standing / "best")["runs"][-1]["readout"] == "raw"
     assert torch.equal(weights(standing / "best"), torch.full((2,), 5.0))
     assert second["against_best"]["moved"]["vs_holding_still"]["b"] == pytest.approx(0.85, abs=0.01)
+
+
+def test_a_run_whose_process_stopped_is_concluded_from_its_folder(tmp_path, monkeypatch):
+    """``conclude``: the last complete save after the staged start is validated, recorded after the start's record
+    and kept; the start's staged copy and an incomplete save are not taken."""
+    monkeypatch.setattr(standing_module, "validate",
+                        lambda config, checkpoint, root: {"moved": _action_error(0.7), "one_layout": _action_error(0.5)})
+    monkeypatch.setattr(standing_module, "validation_sets", lambda config, root: {})
+    standing, curve = tmp_path / "standing", tmp_path / "curve.json"
+    keep(_save(tmp_path / "before", 1000, [_entry(0.9, 0.6, 8000, per_task_kept=True)]), standing, curve)
+    train_dir = tmp_path / "work" / "run-20261128T055407"
+    staged = train_dir / "checkpoints" / "000001000"
+    shutil.copytree(standing / "last", staged)
+    last_save = _save(train_dir, 1500)
+    (last_save / "training_state" / "task_pool.json").write_text(json.dumps(
+        {"start_task": 0, "stats": {"distinct_tasks_used": 210, "elapsed_s": 400.0}}))
+    (last_save / "pretrained_model" / "config.json").write_text(json.dumps({"hidden_dim": 128}))
+    _save(train_dir, 2000, complete=False)  # stopped while saving
+    config = StandingConfig(work=str(tmp_path / "work"))
+    record = standing_module.conclude_stopped(config, train_dir, standing, curve)
+    entry = record["runs"][-1]
+    assert len(record["runs"]) == 2 and entry["start_step"] == 1000 and entry["end_step"] == 1500
+    assert entry["samples"] == 500 * config.batch_size and entry["samples_total"] == 8000 + 500 * config.batch_size
+    assert entry["tasks"] == 210
+    assert entry["started"] == "2026-11-28T05:54:07+00:00" and entry["wall_s"] > 0
+    assert (standing / "last" / "pretrained_model" / "model.safetensors").read_text() == "weights 1500"
+    assert len(json.loads(curve.read_text())["points"]) == 2
