@@ -1,4 +1,5 @@
-"""Synthetic demonstrations for the demonstration-loader and ``demo_replay`` tests.
+"""Synthetic demonstrations for the demonstration-loader and ``demo_replay`` tests, and random poses for the tests of
+what maps or moves poses.
 
 A scene is one library object at a pose ``T_world_object`` (its cloud sampled from the mesh surface with noise).
 A demonstration approaches the object from above, closes the gripper and lifts: its EE poses are fixed in the
@@ -77,3 +78,10 @@ def write_demo_dataset(root, repo_id: str, episodes: list[tuple[str, np.ndarray]
         demos.append(demo)
     dataset.finalize()
     return demos
+
+
+def random_poses(count: int, seed: int = 0, extent_m: float = 2.0) -> np.ndarray:
+    """``(count, 4, 4)`` poses: rotations uniform on SO(3), translations uniform in ``[-extent_m, extent_m]³``."""
+    rng = np.random.default_rng(seed)
+    rotations = Rotation.random(count, random_state=seed).as_matrix()
+    return np.stack([make_pose(rng.uniform(-extent_m, extent_m, 3), rotation) for rotation in rotations])

@@ -191,13 +191,18 @@ def train_command(config: StandingConfig, resume_from: Path | None, train_dir: P
             *config.lerobot_args]
 
 
+def staged_start(train_dir: Path, step: int) -> Path:
+    """Where a run's resumed save is staged as a step checkpoint of ``train_dir`` (LeRobot saves after it)."""
+    return train_dir / "checkpoints" / f"{step:09d}"
+
+
 def _stage_resume(save: Path, train_dir: Path, base_lr: float | None = None,
                   weight_decay: float | None = None) -> Path:
     """``save`` copied as a step checkpoint of ``train_dir`` (where LeRobot resumes it and saves after it), with a
     study arm's ``base_lr`` / ``weight_decay`` (None: unchanged) written where a resume reads them: the scheduler's
     ``base_lrs`` (its lr is ``base_lr`` × the schedule's factor at the step) and the optimizer's param groups (their
     ``lr`` scaled alike, ``initial_lr``, ``weight_decay``) and the saved train config (so later resumes keep them)."""
-    staged = train_dir / "checkpoints" / f"{step_of(save):09d}"
+    staged = staged_start(train_dir, step_of(save))
     for part in (MODEL_DIR, STATE_DIR):
         shutil.copytree(save / part, staged / part)
     if base_lr is None and weight_decay is None:
@@ -430,7 +435,7 @@ def conclude(config: StandingConfig, train_dir: Path, start: Path | None, starte
     work = Path(config.work)
     previous = read_record(start) if start is not None else {"runs": []}
     start_step = step_of(start) if start is not None else 0
-    resume_from = train_dir / "checkpoints" / f"{start_step:09d}" if start is not None else None
+    resume_from = staged_start(train_dir, start_step) if start is not None else None
     log_path = train_dir.with_suffix(".log")
     saves = [save for save in complete_saves(train_dir) if save != resume_from]
     if not saves:

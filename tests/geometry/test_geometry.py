@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from synthetic_demos import random_poses
 
 from lerobot_instant_policy.geometry.sampling import resample_indices, resample_points
 from lerobot_instant_policy.geometry.se3 import (
@@ -18,18 +19,11 @@ from lerobot_instant_policy.geometry.se3 import (
     transform_points,
 )
 
-
-def _random_poses(count: int, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    rotations = Rotation.random(count, random_state=seed).as_matrix()
-    return np.stack([make_pose(rng.uniform(-2, 2, 3), rotation) for rotation in rotations])
-
-
 # --------------------------------------------------------------------------------------------- se3
 
 
 def test_invert_composes_to_identity_single_and_batched():
-    poses = _random_poses(16)
+    poses = random_poses(16)
     for pose in poses:
         np.testing.assert_allclose(invert(pose) @ pose, np.eye(4), atol=1e-12)
         np.testing.assert_allclose(pose @ invert(pose), np.eye(4), atol=1e-12)
@@ -40,7 +34,7 @@ def test_invert_composes_to_identity_single_and_batched():
 
 
 def test_invert_undoes_transform_points():
-    pose = _random_poses(1, seed=3)[0]
+    pose = random_poses(1, seed=3)[0]
     points = np.random.default_rng(3).normal(size=(50, 3))
     moved = transform_points(pose, points)
     assert not np.allclose(moved, points)
@@ -48,7 +42,7 @@ def test_invert_undoes_transform_points():
 
 
 def test_pos_quat_round_trip_and_non_negative_w():
-    for pose in _random_poses(32, seed=1):
+    for pose in random_poses(32, seed=1):
         position, quat = pose_to_pos_quat(pose)
         assert quat[3] >= 0.0
         assert np.isclose(np.linalg.norm(quat), 1.0)

@@ -8,6 +8,7 @@ import torch
 from lerobot.configs import PipelineFeatureType
 from lerobot.processor import PolicyProcessorPipeline
 from scipy.spatial.transform import Rotation
+from synthetic_demos import random_poses
 
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance, transform_points
@@ -31,12 +32,6 @@ from lerobot_instant_policy.perception.hand_mask import (
 from lerobot_instant_policy.perception.steps import CLOUD_MASK_KEY
 
 
-def random_poses(count: int, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    rotations = Rotation.random(count, random_state=seed)
-    return np.stack([make_pose(rng.uniform(-0.5, 0.5, 3), rotation) for rotation in rotations])
-
-
 def smooth_poses(count: int) -> np.ndarray:
     """A gripper sweeping 30 cm while turning 90° about its approach axis: ``(count, 4, 4)``."""
     turn = Rotation.from_euler("z", np.linspace(0, 90, count)[:, None], degrees=True)
@@ -57,7 +52,7 @@ def test_config_rejects_bad_values():
 
 
 def test_round_trip_recovers_the_gripper_pose_and_is_proper():
-    T_world_ee = random_poses(40)
+    T_world_ee = random_poses(40, extent_m=0.5)
     apertures = np.linspace(0.06, 0.09, 40)  # all open: no hysteresis in the way
     trajectory = map_hand_to_gripper(landmarks_from_gripper(T_world_ee, apertures))
     translation, angle = pose_distance(trajectory.T_world_ee, T_world_ee)
@@ -70,7 +65,7 @@ def test_round_trip_recovers_the_gripper_pose_and_is_proper():
 
 
 def test_round_trip_under_one_centimetre_landmark_noise():
-    T_world_ee = random_poses(200, seed=3)
+    T_world_ee = random_poses(200, seed=3, extent_m=0.5)
     noisy = landmarks_from_gripper(T_world_ee, 0.07, np.random.default_rng(1), noise_m=0.01)
     trajectory = map_hand_to_gripper(noisy, HandMappingConfig(max_gap_frames=200))
     translation, angle = pose_distance(trajectory.T_world_ee[trajectory.valid], T_world_ee[trajectory.valid])
@@ -139,7 +134,7 @@ def distance_to(points: np.ndarray, samples: np.ndarray) -> np.ndarray:
 
 def test_mask_removes_the_hand_volume_and_keeps_an_object_nearby():
     rng = np.random.default_rng(0)
-    T_world_ee = random_poses(1, seed=5)[0]
+    T_world_ee = random_poses(1, seed=5, extent_m=0.5)[0]
     landmarks = landmarks_from_gripper(T_world_ee, 0.05)
     radius = 0.012
     ends = landmarks[np.array(HAND_BONES)]  # (bones, 2, 3)
@@ -159,7 +154,7 @@ def test_mask_removes_the_hand_volume_and_keeps_an_object_nearby():
 
 
 def test_the_palm_between_the_bones_is_removed():
-    landmarks = landmarks_from_gripper(random_poses(1, seed=6)[0], 0.05)
+    landmarks = landmarks_from_gripper(random_poses(1, seed=6, extent_m=0.5)[0], 0.05)
     radius = 0.008
     corners = landmarks[[0, 1, 5]]  # the palm triangle wrist, thumb CMC, index MCP
     normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
