@@ -1,9 +1,11 @@
 """``InstantPolicyConfig``: the configuration of Instant Policy (``--policy.type=instant_policy``).
 
-One flag picks the model: ``--policy.preset=small`` (the model that ships, trained on a CPU) or
+One flag picks the model: ``--policy.preset=small`` (the model that ships, trained on a CPU),
 ``--policy.preset=paper`` (the paper's model: hidden 1024, 16 heads, ≈124M parameters, its action scene graph with
-re-encoded action clouds, 10 encoding frequencies, up to 5 demonstrations per training context). A field left at
-``None`` takes the preset's value; a value given explicitly wins over the preset. After ``__post_init__`` every field
+re-encoded action clouds, 10 encoding frequencies, up to 5 demonstrations per training context) or
+``--policy.preset=refined`` (the small model trained to refine the per-object replay of its demonstrations, and run
+from it: half of the training rows start from the noised replay prior, inference from the replay noised to a quarter
+of the DDIM steps). A field left at ``None`` takes the preset's value; a value given explicitly wins over the preset. After ``__post_init__`` every field
 is set, so a saved ``config.json`` is complete on its own.
 
 This one dataclass configures everything: LeRobot's training loop, the policy, and, handed over as it is, the network
@@ -70,17 +72,21 @@ class InstantPolicyPreset:
     reencode_action_clouds: bool
     max_demos: int
     optimizer_lr: float
+    refine_fraction: float
+    replay_init_strength: float | None
+    replay_per_object: bool
 
 
+_SMALL = dict(hidden_dim=128, num_heads=4, local_layers=2, context_layers=2, action_layers=2, encoder_preset="small",
+              num_frequencies=4, action_scene_graph=False, reencode_action_clouds=False, max_demos=2, optimizer_lr=1e-3)
 PRESETS: dict[str, InstantPolicyPreset] = {
-    "small": InstantPolicyPreset(
-        hidden_dim=128, num_heads=4, local_layers=2, context_layers=2, action_layers=2, encoder_preset="small",
-        num_frequencies=4, action_scene_graph=False, reencode_action_clouds=False, max_demos=2, optimizer_lr=1e-3,
-    ),
+    "small": InstantPolicyPreset(**_SMALL, refine_fraction=0.0, replay_init_strength=None, replay_per_object=False),
     "paper": InstantPolicyPreset(
         hidden_dim=1024, num_heads=16, local_layers=2, context_layers=2, action_layers=2, encoder_preset="paper",
         num_frequencies=10, action_scene_graph=True, reencode_action_clouds=True, max_demos=5, optimizer_lr=1e-5,
+        refine_fraction=0.0, replay_init_strength=None, replay_per_object=False,
     ),
+    "refined": InstantPolicyPreset(**_SMALL, refine_fraction=0.5, replay_init_strength=0.25, replay_per_object=True),
 }
 
 
@@ -98,8 +104,8 @@ class InstantPolicyConfig(PreTrainedConfig):
     Output: ``action (8,)`` absolute EE target poses in the same layout; the network predicts ``horizon`` of them.
 
     Args:
-        preset: ``"small"`` or ``"paper"``, whose values fill every field left at ``None`` (module docstring;
-            default ``"small"``).
+        preset: ``"small"``, ``"paper"`` or ``"refined"``, whose values fill every field left at ``None`` (module
+            docstring; default ``"small"``).
         num_demos: N, demonstrations given as context at evaluation, 1…8 (default 2).
         min_demos: the smallest N drawn per training batch, 1…``max_demos`` (default 1).
         max_demos: the largest N drawn per training batch, ``min_demos``…8 (``None``: the preset's, ``paper`` 5,
@@ -170,10 +176,19 @@ class InstantPolicyConfig(PreTrainedConfig):
             looks again once the gripper has acted (default ``True``).
         replay_init_strength: s in (0, 1] starts denoising from the demonstrated actions replayed into the live scene
             (yaw-only ICP of the demonstrations' first clouds onto the live one, :func:`~.data.replay_plan.
-            plan_replay`) noised to the last ⌈s·K⌉ DDIM steps, instead of from pure noise (default ``None``: pure
-            noise, the paper's).
+            plan_replay`) noised to the last ⌈s·K⌉ DDIM steps, instead of from pure noise (``None``: the preset's;
+            ``small`` and ``paper``: pure noise, the paper's; ``refined``: 0.25).
         replay_per_object: plan that replay per object (the grasp follows the grasped object, the release the other
-            one) where two objects move independently (default ``False``).
+            one) where two objects move independently; in training to refine, the priors too (``None``: the
+            preset's, ``True`` for ``refined``, else ``False``).
+        refine_fraction: the share of training rows whose noised sample starts from the row's replay prior
+            (``observation.replay_prior``, :mod:`.pseudo_demos.replay_priors`, which the pseudo-task stream and pool
+            supply when this is positive) instead of its clean actions, the target staying the clean actions: the
+            network learns to correct the replay it starts from at inference. Every other row keeps the paper's
+            loss on the same weights (``None``: the preset's; 0 for ``small`` and ``paper``, 0.5 for ``refined``).
+        refine_max_strength: a refined row's noise timestep is drawn uniformly from the first
+            ``⌈refine_max_strength · diffusion_train_steps⌉``, where inference with ``replay_init_strength`` up to
+            this value starts, in (0, 1] (default 0.5).
         samples_per_prediction: S, each prediction is the mean of S samples from S noise draws, 1…64 (default 1, the
             paper's); the action passes run on S rows instead of one.
         use_amp: (LeRobot's) autocast in training and evaluation, bfloat16 on the CPU and float16 on CUDA (default
@@ -231,7 +246,9 @@ class InstantPolicyConfig(PreTrainedConfig):
     n_action_steps: int = 8
     replan_on_gripper_change: bool = True
     replay_init_strength: float | None = None
-    replay_per_object: bool = False
+    replay_per_object: bool | None = None
+    refine_fraction: float | None = None
+    refine_max_strength: float = 0.5
     samples_per_prediction: int = 1
 
     push_to_hub: bool = False
@@ -276,6 +293,10 @@ class InstantPolicyConfig(PreTrainedConfig):
             )
         if self.replay_init_strength is not None and not 0.0 < self.replay_init_strength <= 1.0:
             raise ValueError(f"replay_init_strength must lie in (0, 1] or be None, got {self.replay_init_strength}")
+        if not 0.0 <= self.refine_fraction <= 1.0:
+            raise ValueError(f"refine_fraction must lie in [0, 1], got {self.refine_fraction}")
+        if not 0.0 < self.refine_max_strength <= 1.0:
+            raise ValueError(f"refine_max_strength must lie in (0, 1], got {self.refine_max_strength}")
         if not 1 <= self.n_action_steps <= self.horizon:
             raise ValueError(f"n_action_steps must lie in 1…horizon ({self.horizon}), got {self.n_action_steps}")
         if self.n_obs_steps != 1:

@@ -45,6 +45,10 @@ CONTEXT_SCENE_FEATURES_KEY = "observation.context.scene_features"
 ENCODED_KEYS = (SCENE_POSITIONS_KEY, SCENE_FEATURES_KEY, CONTEXT_SCENE_POSITIONS_KEY, CONTEXT_SCENE_FEATURES_KEY,
                 CONTEXT_T_WORLD_EE_KEY, CONTEXT_GRIPPER_OPEN_KEY, CONTEXT_ID_KEY)
 
+# Training to refine (``InstantPolicyConfig.refine_fraction``): per row the replay prior of its ``T`` actions, what the
+# context's replay plan commands there, ``(B, T, 8)`` absolute world-frame EE targets in the 8-vector layout.
+REPLAY_PRIOR_KEY = "observation.replay_prior"
+
 NUM_POINTS = 2048
 POINTCLOUD_NAMES = ["point", "xyz"]
 POSE_GRIPPER_NAMES = ["x", "y", "z", "qx", "qy", "qz", "qw", "gripper_open"]

@@ -43,6 +43,7 @@ from .contract import (
     CONTEXT_T_WORLD_EE_KEY,
     ENCODED_KEYS,
     POINTCLOUD_KEY,
+    REPLAY_PRIOR_KEY,
     SCENE_FEATURES_KEY,
     SCENE_POSITIONS_KEY,
     STATE_KEY,
@@ -52,8 +53,7 @@ from .contract import (
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, open_demo_dataset
-from .data.replay_plan import ReplayPlan, plan_replay
-from .geometry.registration import RegistrationConfig
+from .data.replay_plan import REPLAY_REGISTRATION, ReplayPlan, plan_replay
 from .geometry.rigid_torch import compose, invert_rigid
 from .model.bounds import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, check_range
 from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
@@ -157,10 +157,14 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 context: the batch's own, as clouds (``contract.CONTEXT_KEYS``, the stream's: :meth:`batch_context`)
                 or already encoded (``contract.ENCODED_KEYS``, the task pool's, whose live frame comes encoded too
                 in place of its cloud: :meth:`encoded_batch_context`), or else ``episode_index (B,)``, whose task's
-                other episodes in the training dataset are drawn.
+                other episodes in the training dataset are drawn. With ``config.refine_fraction`` > 0 also
+                ``observation.replay_prior (B, T, 8)`` (the stream's and the pool's with
+                ``StreamConfig.replay_priors``): that share of the rows, drawn per row, starts from it
+                (:meth:`~.model.instant_policy_network.InstantPolicyNetwork.training_loss`).
 
         Returns:
-            The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats.
+            The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats, and
+            ``"refined"``, the share of refined rows, when training to refine.
         """
         points_world, state, T_world_ee, T_ee_actions, action_gripper = self.training_targets(batch)
         batch_size = len(state)
@@ -196,9 +200,43 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             demos = encoder.demos(context_episodes, device)
             scene_geometry = encoder.frames(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
         context = self.network.encode_context(demos, points_world, T_world_ee, gripper, scene_geometry=scene_geometry)
-        losses = self.network.training_loss(context, T_ee_actions, action_gripper)
+        prior, refined_rows = self._refinement(batch, T_world_ee)
+        losses = self.network.training_loss(context, T_ee_actions, action_gripper, prior=prior,
+                                            refined_rows=refined_rows)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
+        if refined_rows is not None:
+            parts["refined"] = float(refined_rows.float().mean())
         return losses["loss"], {**parts, "num_demos": float(num_demos)}
+
+    def _refinement(self, batch: dict[str, Tensor], T_world_ee: Tensor) -> tuple[Tensor | None, Tensor | None]:
+        """With ``config.refine_fraction`` > 0: the replay prior of the batch as a diffusion variable in each row's
+        EE frame ``(B, T, 7)`` and the rows that start from it ``(B,)`` (each with probability ``refine_fraction``);
+        else ``(None, None)``. ``KeyError`` saying how to get priors when the batch has none."""
+        if not self.config.refine_fraction:
+            return None, None
+        if REPLAY_PRIOR_KEY not in batch:
+            raise KeyError(
+                f"refine_fraction={self.config.refine_fraction} trains on replay priors, but the batch has no "
+                f"{REPLAY_PRIOR_KEY!r}: train on the pseudo-task stream or pool (lerobot-ip-train), which plans them "
+                "when refine_fraction > 0, or set --policy.refine_fraction=0"
+            )
+        planned = batch[REPLAY_PRIOR_KEY]
+        expected = (len(T_world_ee), self.config.horizon, 8)
+        if tuple(planned.shape) != expected:
+            raise ValueError(f"{REPLAY_PRIOR_KEY!r} must have shape (B, horizon, 8) = {expected}, got "
+                             f"{tuple(planned.shape)}")
+        if not torch.isfinite(planned).all():
+            raise ValueError(f"{REPLAY_PRIOR_KEY!r} contains NaN or infinite values")
+        prior = self._in_ee_frame(planned.to(device=T_world_ee.device, dtype=T_world_ee.dtype), T_world_ee)
+        refined_rows = torch.rand(len(T_world_ee), device=T_world_ee.device) < self.config.refine_fraction
+        return prior, refined_rows
+
+    def _in_ee_frame(self, planned: Tensor, T_world_ee: Tensor) -> Tensor:
+        """Planned world-frame actions ``(B, T, 8)`` as the diffusion variable ``(B, T, 7)`` of actions relative to the
+        current EE poses ``T_world_ee (B, 4, 4)``."""
+        T_world_planned, planned_gripper = poses_from_vectors_torch(planned)
+        T_ee_planned = compose(invert_rigid(T_world_ee)[:, None], T_world_planned)
+        return self.network.diffusion.normalize(T_ee_planned, planned_gripper.clamp(0.0, 1.0))
 
     def encoded_batch_context(self, batch: dict[str, Tensor], num_demos: int) -> DemoTensors:
         """The first ``num_demos`` demonstrations of an already encoded context (``contract.ENCODED_KEYS``:
@@ -285,20 +323,33 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
     @torch.inference_mode()
     def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None,
-                             num_inference_steps: int | None = None, **kwargs) -> Tensor:
+                             num_inference_steps: int | None = None, initial_actions: Tensor | None = None,
+                             **kwargs) -> Tensor:
         """``(B, T, 8)`` absolute world-frame EE targets (xyz, quaternion xyzw with ``w ≥ 0``, gripper 1/0).
 
         Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), with
         ``num_inference_steps`` DDIM steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
-        With ``config.replay_init_strength`` the denoising starts from the episode's replay plan at the current step
-        (:meth:`replay_guess`); with ``config.samples_per_prediction`` > 1 each row is the mean of that many samples.
+        With ``config.replay_init_strength`` the denoising starts from ``initial_actions (B, T, 8)`` (absolute
+        world-frame actions in the same layout, a plan made elsewhere), or without them from the episode's replay
+        plan at the current step (:meth:`replay_guess`); with ``config.samples_per_prediction`` > 1 each row is the
+        mean of that many samples.
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
         T_world_ee, gripper_open = poses_from_vectors_torch(state)
         gripper = (gripper_open > 0.5).to(state.dtype)
         steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
-        guess = self.replay_guess(points_world, T_world_ee, tasks) if self.config.replay_init_strength else None
+        guess = None
+        if initial_actions is not None:
+            expected = (len(state), self.config.horizon, 8)
+            if not self.config.replay_init_strength:
+                raise ValueError("initial_actions are a denoising start: set replay_init_strength to use them")
+            if tuple(initial_actions.shape) != expected or not torch.isfinite(initial_actions).all():
+                raise ValueError(f"initial_actions must be finite, of shape (B, horizon, 8) = {expected}, got "
+                                 f"{tuple(initial_actions.shape)}")
+            guess = self._in_ee_frame(initial_actions.to(device=state.device, dtype=state.dtype), T_world_ee)
+        elif self.config.replay_init_strength:
+            guess = self.replay_guess(points_world, T_world_ee, tasks)
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
         for task in dict.fromkeys(tasks):
             rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
@@ -355,17 +406,14 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         ``T_world_ee (B, 4, 4)`` is the current EE pose. Planned action ``step + j`` is the guess for action ``j``."""
         if self._replay_plans is None or len(self._replay_plans) != len(tasks):
             clouds = points_world.detach().cpu().numpy()
-            registration = RegistrationConfig(yaw_only=True)
             self._replay_plans = [
-                plan_replay(task, self._demonstrations.get(task), cloud, registration, self.config.replay_per_object)
+                plan_replay(task, self._demonstrations.get(task), cloud, REPLAY_REGISTRATION,
+                            self.config.replay_per_object)
                 for task, cloud in zip(tasks, clouds, strict=True)
             ]
         planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])
-        T_world_planned, planned_gripper = poses_from_vectors_torch(
-            torch.from_numpy(planned).to(device=T_world_ee.device, dtype=T_world_ee.dtype)
-        )
-        T_ee_planned = compose(invert_rigid(T_world_ee)[:, None], T_world_planned)
-        return self.network.diffusion.normalize(T_ee_planned, planned_gripper)
+        return self._in_ee_frame(torch.from_numpy(planned).to(device=T_world_ee.device, dtype=T_world_ee.dtype),
+                                 T_world_ee)
 
     # ------------------------------------------------------------------ checkpoints
     @classmethod

@@ -76,6 +76,15 @@ def test_the_paper_preset_is_the_papers_graph_and_context():
     assert config(action_scene_graph=True).action_scene_graph and not config(action_scene_graph=True).reencode_action_clouds
 
 
+def test_the_refined_preset_is_the_small_model_trained_and_run_from_the_replay():
+    refined, small = config(preset="refined"), config()
+    assert (refined.refine_fraction, refined.replay_init_strength, refined.replay_per_object) == (0.5, 0.25, True)
+    assert (small.refine_fraction, small.replay_init_strength, small.replay_per_object) == (0.0, None, False)
+    sizes = ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers", "encoder_preset", "max_demos")
+    assert [getattr(refined, name) for name in sizes] == [getattr(small, name) for name in sizes]
+    assert config(preset="refined", refine_fraction=0.2, replay_init_strength=0.5).refine_fraction == 0.2
+
+
 def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
     """The shipped config.json, written before four options were removed, names them as ``null``: it loads the ways
     LeRobot and this package load a checkpoint's config, as a config without them, and so does one where each has the
@@ -174,7 +183,7 @@ def test_optimizer_and_scheduler_presets():
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        ({"preset": "huge"}, r"unknown preset 'huge'; known presets: \['paper', 'small'\]"),
+        ({"preset": "huge"}, r"unknown preset 'huge'; known presets: \['paper', 'refined', 'small'\]"),
         ({"num_demos": 0}, r"num_demos \(N\) must be an integer in the supported range 1…8, got 0"),
         ({"num_demos": 9}, r"num_demos \(N\) must be an integer in the supported range"),
         ({"max_demos": 9}, "max_demos must be an integer in the supported range"),
@@ -198,6 +207,9 @@ def test_optimizer_and_scheduler_presets():
         ({"gripper_keypoints": [[0.0, 0.0, z] for z in (0.0, 0.1, 0.2)]}, "at least 3 points not on one line"),
         ({"gripper_keypoints": [[0.0, 0.0, 0.0]] * 3}, "at least 3 points not on one line"),
         ({"gripper_flip_probability": 1.5}, r"gripper_flip_probability must lie in \[0, 1\]"),
+        ({"refine_fraction": 1.5}, r"refine_fraction must lie in \[0, 1\], got 1.5"),
+        ({"refine_fraction": -0.1}, r"refine_fraction must lie in \[0, 1\]"),
+        ({"refine_max_strength": 0.0}, r"refine_max_strength must lie in \(0, 1\], got 0.0"),
         ({"optimizer_lr": 0.0}, "optimizer_lr and optimizer_grad_clip_norm must be positive"),
         ({"encoder_weights": "weights.pt"}, "encoder_weights must name a .safetensors file"),
         ({"mlp_ratio": 0}, "mlp_ratio must be at least 1"),

@@ -85,7 +85,9 @@ class StandingConfig:
     step go on unchanged, only its peak rate changes). ``average_decay``: keep a moving average of the weights
     (``lerobot-ip-train --average.decay``), validated beside the raw weights. ``device``: where the update runs;
     ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its CPU
-    cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags."""
+    cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags.
+    ``replay_init_strength`` / ``replay_per_object``: validate every checkpoint started from the replay of its
+    demonstrations (``lerobot-ip-action-error --replay-init-strength``; None: as the checkpoint's config says)."""
 
     deadline_s: float = 9000.0
     validate_s: float = 420.0
@@ -118,6 +120,8 @@ class StandingConfig:
     weight_decay: float | None = None
     average_decay: float | None = None
     lerobot_args: list[str] = field(default_factory=list)
+    replay_init_strength: float | None = None
+    replay_per_object: bool | None = None
 
     def validate(self) -> None:
         if not 0 < self.validate_s < self.deadline_s:
@@ -136,6 +140,8 @@ class StandingConfig:
             raise ValueError(f"weight_decay must be non-negative, got {self.weight_decay}")
         if self.average_decay is not None and not 0 < self.average_decay < 1:
             raise ValueError(f"average_decay must lie in (0, 1), got {self.average_decay}")
+        if self.replay_init_strength is not None and not 0 < self.replay_init_strength <= 1:
+            raise ValueError(f"replay_init_strength must lie in (0, 1], got {self.replay_init_strength}")
 
 
 # ---------------------------------------------------------------------------------------------------- saves
@@ -258,12 +264,18 @@ def wait_for(generating: dict[str, subprocess.Popen | None]) -> None:
 def figures(result: dict) -> dict:
     """Translation error, its ratio to holding still and the context gain in translation, from
     ``lerobot-ip-action-error``'s default setting, with the two ratios' 95% intervals over tasks
-    (``vs_holding_still_interval``, ``context_gain_interval``: ``[low, high]``, None for one task)."""
+    (``vs_holding_still_interval``, ``context_gain_interval``: ``[low, high]``, None for one task); for a checkpoint
+    started from the replay also the replay's own ratio to holding still and own / replay with their intervals."""
     own, hold = result["settings"][0]["translation_mm"], result["hold"]["translation_mm"]
-    return {"translation_mm": own, "hold_translation_mm": hold, "vs_holding_still": round(own / hold, 4),
-            "context_gain": result["context_gain"]["translation"],
-            "vs_holding_still_interval": result["intervals"]["vs_holding_still"],
-            "context_gain_interval": result["intervals"]["context_gain_translation"]}
+    shown = {"translation_mm": own, "hold_translation_mm": hold, "vs_holding_still": round(own / hold, 4),
+             "context_gain": result["context_gain"]["translation"],
+             "vs_holding_still_interval": result["intervals"]["vs_holding_still"],
+             "context_gain_interval": result["intervals"]["context_gain_translation"]}
+    if "replay" in result:
+        shown.update({name: result["intervals"][name]["value"] for name in ("vs_replay", "replay_vs_holding_still")})
+        shown.update({f"{name}_interval": result["intervals"][name]["ci95"]
+                      for name in ("vs_replay", "replay_vs_holding_still")})
+    return shown
 
 
 def per_task(result: dict) -> dict:
@@ -282,11 +294,13 @@ def validation_record(results: dict) -> dict:
 
 def validation_key(config: StandingConfig) -> dict:
     """What a validation result depends on besides the checkpoint: the sets' presets (SHA-256), their size, the
-    setting and the device."""
+    setting, the device and, where given, the replay start."""
+    replay = {name: getattr(config, name) for name in ("replay_init_strength", "replay_per_object")
+              if getattr(config, name) is not None}
     return {"presets_sha256": {name: hashlib.sha256(Path(preset).read_bytes()).hexdigest()
                                for name, preset in VALIDATION_CONFIGS.items()},
             "val_tasks": config.val_tasks, "val_frames_per_task": config.val_frames_per_task,
-            "setting": {"K": EVAL_K, "N": EVAL_N, "L": EVAL_L}, "device": config.device}
+            "setting": {"K": EVAL_K, "N": EVAL_N, "L": EVAL_L}, "device": config.device, **replay}
 
 
 def validation_env() -> dict[str, str]:
@@ -312,6 +326,10 @@ def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
             "--policy-path", str(checkpoint), "--root", str(root / name), "--repo-id", f"local/{name}",
             "--tasks", str(config.val_tasks), "--frames-per-task", str(config.val_frames_per_task), "--K", str(EVAL_K),
             "--N", str(EVAL_N), "--L", str(EVAL_L), "--no-untrained", "--json", "--device", config.device]
+        if config.replay_init_strength is not None:
+            command += ["--replay-init-strength", str(config.replay_init_strength)]
+        if config.replay_per_object is not None:
+            command += ["--replay-per-object", "true" if config.replay_per_object else "false"]
         done = subprocess.run(command, capture_output=True, text=True, env=validation_env())
         if done.returncode != 0:
             raise StandingError(f"validation on {name} failed: {done.stderr[-2000:]}")

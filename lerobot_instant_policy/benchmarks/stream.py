@@ -15,11 +15,12 @@ import dataclasses
 import itertools
 import time
 
+import numpy as np
 import torch
 
 from ..configuration_instant_policy import InstantPolicyConfig
 from ..contract import CONTEXT_ID_KEY
-from ..policy.task_pool import PoolConfig, TaskPool
+from ..policy.task_pool import PoolConfig, TaskPool, encode_task
 from ..pseudo_demos.stream import PseudoTaskStream, StreamConfig
 from ..stream_training import policy_encoder_source, stream_config_for
 
@@ -102,3 +103,36 @@ def pool_benchmark(stream_config: StreamConfig, pool_config: PoolConfig, preset:
             "batch": batch_size, "torch_threads": torch.get_num_threads(), "stream": _stream_summary(config),
             "generators": pool_config.generators, "generator_threads": pool_config.generator_threads,
             "generator_device": pool_config.device, "capacity": pool_config.capacity, "pool": stats, **result}
+
+
+def replay_prior_benchmark(stream_config: StreamConfig, tasks: int = 24, preset: str = "small",
+                           device: str | None = None) -> dict:
+    """What replay priors (training to refine) cost a pool generator: the seconds per task of its work (plan, render
+    and encode, :func:`~..policy.task_pool.encode_task`) without and with the priors, on the same task indices, in
+    blocks of ``tasks_per_render`` whose order alternates, so that both variants share the machine's load. Figures:
+    the median seconds per task of each and their ratio, the pool's task rate with priors relative to without."""
+    device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    policy_config = InstantPolicyConfig(preset=preset, device=str(device))
+    base = dataclasses.replace(stream_config_for(policy_config, stream_config), replay_priors=False)
+    variants = {"without": base, "with": dataclasses.replace(base, replay_priors=True, replay_per_object=True)}
+    streams = {name: PseudoTaskStream(config, device=device) for name, config in variants.items()}
+    encoder = policy_encoder_source(policy_config).build().to(device)
+    per_task: dict[str, list[float]] = {name: [] for name in variants}
+    indices = streams["without"].task_indices()
+    block = base.tasks_per_render
+    for round_index in range(max(1, tasks // block)):
+        chunk = list(itertools.islice(indices, block))
+        order = ("without", "with") if round_index % 2 == 0 else ("with", "without")
+        for name in order:
+            started = time.perf_counter()
+            rendered = streams[name].render_tasks(chunk)
+            for task in rendered:
+                encode_task(task, encoder, base.horizon)
+            _synchronize(device)
+            if rendered:
+                per_task[name].append((time.perf_counter() - started) / len(rendered))
+    medians = {name: float(np.median(values)) for name, values in per_task.items()}
+    return {"device": str(device), "torch_threads": torch.get_num_threads(), "stream": _stream_summary(base),
+            "blocks": len(per_task["with"]), "seconds_per_task": medians,
+            "ratio_with_to_without": medians["with"] / medians["without"],
+            "task_rate_with_priors": medians["without"] / medians["with"]}

@@ -60,15 +60,18 @@ def _bracket(interval: list[float] | None) -> str:
 
 def summary_line(result: dict) -> str:
     """The first setting of an action-error result (:func:`~..evaluation.action_error.action_error`, or the
-    workbench sweep's) in one line: its translation error, the error over holding still's and the context gain in
-    translation, each ratio followed by its 95% interval over tasks."""
+    workbench sweep's) in one line: its translation error, the error over holding still's, the context gain in
+    translation and, for a policy that starts from the replay, the error over the replay's, each ratio followed by its
+    95% interval over tasks."""
     own, hold = result["settings"][0], result["hold"]["translation_mm"]
     intervals = result["intervals"]
     return (f"K={own['K']} N={own['N']} L={own['L']}, {result['tasks']} tasks x {result['frames_per_task']} frames: "
             f"{own['translation_mm']:.2f} mm, {_number(own['translation_mm'] / hold if hold > 0 else None)} x "
             f"holding still {_bracket(intervals['vs_holding_still'])}, context gain "
-            f"{_number(result['context_gain']['translation'])} {_bracket(intervals['context_gain_translation'])} "
-            f"(95% intervals: cluster bootstrap over {intervals['clusters']} tasks)")
+            f"{_number(result['context_gain']['translation'])} {_bracket(intervals['context_gain_translation'])}"
+            + (f", {_number(intervals['vs_replay']['value'])} x the replay {_bracket(intervals['vs_replay']['ci95'])}"
+               if "vs_replay" in intervals else "")
+            + f" (95% intervals: cluster bootstrap over {intervals['clusters']} tasks)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -81,6 +84,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--N", type=_one_int, default=DEFAULT_N, help=f"context demonstrations (default {DEFAULT_N})")
     parser.add_argument("--L", type=_one_int, default=DEFAULT_L,
                         help=f"waypoints per demonstration (default {DEFAULT_L})")
+    parser.add_argument("--replay-init-strength", type=float,
+                        help="start every prediction from the replay of the demonstrations noised to this strength "
+                             "(the policy's replay_init_strength; default: the checkpoint's); the result then holds "
+                             "the replay's own errors beside the policy's")
+    parser.add_argument("--replay-per-object", choices=["true", "false"],
+                        help="plan that replay per object (the policy's replay_per_object; default: the checkpoint's)")
     add_prediction_and_output(parser)
     return parser
 
@@ -107,7 +116,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     return report(PROG, lambda: action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed,
                                              args.K, args.N, args.L, not args.no_untrained, args.repo_id, args.device,
-                                             args.samples_per_prediction), args.json)
+                                             args.samples_per_prediction, args.replay_init_strength,
+                                             None if args.replay_per_object is None
+                                             else args.replay_per_object == "true"), args.json)
 
 
 if __name__ == "__main__":

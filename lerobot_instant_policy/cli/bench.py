@@ -128,7 +128,7 @@ def _add_inference(commands) -> None:
 
 def add_inference_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of ``inference`` (read back by :func:`inference_settings`)."""
-    parser.add_argument("--preset", choices=["small", "paper"], default="small")
+    parser.add_argument("--preset", choices=["small", "paper", "refined"], default="small")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--policy-path", help="time this checkpoint (a pretrained_model directory) instead of a fresh preset")
     _add_variant_arguments(parser)
@@ -170,7 +170,7 @@ def _add_train_step(commands) -> None:
 
 def add_train_step_arguments(parser: argparse.ArgumentParser) -> None:
     """The arguments of ``train-step`` (read back by :func:`train_step_settings`)."""
-    parser.add_argument("--preset", choices=["small", "paper"], default="small")
+    parser.add_argument("--preset", choices=["small", "paper", "refined"], default="small")
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=5)
     _add_variant_arguments(parser)
@@ -240,7 +240,7 @@ def _add_stream(commands) -> None:
         command = commands.add_parser(name, help=help_text)
         command.add_argument("--config", default="configs/generate/stream_bounded.json",
                              help="a lerobot-ip-generate JSON config: the distributions the tasks are drawn from")
-        command.add_argument("--preset", choices=["small", "paper"], default="small",
+        command.add_argument("--preset", choices=["small", "paper", "refined"], default="small",
                              help="the instant_policy preset (width) whose update is fed")
         command.add_argument("--batch-size", type=int, default=8)
         command.add_argument("--seconds", type=float, default=600.0 if name == "pool" else 60.0,
@@ -265,6 +265,18 @@ def _add_stream(commands) -> None:
             command.add_argument("--min-tasks", type=int, help="tasks received before the first sample")
         command.add_argument("--json", action="store_true", help=JSON_HELP)
         command.set_defaults(handler=_run_stream)
+    priors = commands.add_parser("priors", help="what replay priors (training to refine) cost a pool generator: "
+                                               "seconds per task without and with them, interleaved, and the ratio")
+    priors.add_argument("--config", default="configs/generate/stream_bounded_mixed.json",
+                        help="a lerobot-ip-generate JSON config: the distributions the tasks are drawn from")
+    priors.add_argument("--tasks", type=int, default=24, help="tasks per variant")
+    priors.add_argument("--samples-per-task", type=int, default=8, help="live frames rendered and encoded per task")
+    priors.add_argument("--tasks-per-render", type=int, default=1, help="tasks rendered in one call (one block; the standing run's 1)")
+    priors.add_argument("--surface-samples", type=int, default=4096,
+                        help="surface samples per object that splatting draws from (default: the standing run's 4096)")
+    priors.add_argument("--threads", type=int, default=1, help="torch threads (a pool generator's default: 1)")
+    priors.add_argument("--json", action="store_true", help=JSON_HELP)
+    priors.set_defaults(handler=_run_priors)
 
 
 def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
@@ -301,6 +313,21 @@ def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> di
     except ValueError as error:
         parser.error(str(error))
     return pool_benchmark(config, pool, **run)
+
+
+def _run_priors(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    if min(args.tasks, args.samples_per_task, args.tasks_per_render, args.surface_samples, args.threads) <= 0:
+        parser.error("--tasks, --samples-per-task, --tasks-per-render, --surface-samples and --threads must be positive")
+    import torch
+
+    from ..benchmarks.stream import replay_prior_benchmark
+    from ..pseudo_demos.stream import StreamConfig
+
+    torch.set_num_threads(args.threads)
+    config = StreamConfig.from_generate_config(args.config, samples_per_task=args.samples_per_task,
+                                               tasks_per_render=args.tasks_per_render,
+                                               surface_samples=args.surface_samples)
+    return replay_prior_benchmark(config, tasks=args.tasks)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ structure (one object, no grasp and release) is planned whole.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,12 +32,31 @@ from ..contract import poses_from_vectors, vectors_from_poses
 from ..geometry.registration import RegistrationConfig, RegistrationResult, register_rigid
 from .demonstrations import Demonstration
 
+# The registration of the replay an instant_policy denoises from (``replay_init_strength``) and trains to refine:
+# yaw-only, tabletop objects standing upright (the demo_replay baseline's default too).
+REPLAY_REGISTRATION = RegistrationConfig(yaw_only=True)
+
+
+@dataclass(frozen=True)
+class ReplaySource:
+    """What a replay reads of one demonstration: its first cloud ``first_cloud (P, 3)`` (world frame) and its
+    actions ``action (F, 8)``."""
+
+    first_cloud: np.ndarray
+    action: np.ndarray
+
+    @classmethod
+    def of(cls, demonstration: Demonstration) -> ReplaySource:
+        return cls(demonstration.points_world[0], demonstration.action)
+
 
 @dataclass(frozen=True)
 class ReplayPlan:
     """The actions one env executes: ``actions (F, 8)`` in the world frame, from demonstration ``demo_index`` of
     ``task`` moved by ``T_now_demo (4, 4)`` (whole-cloud plan) or by ``T_now_demo_per_action (F, 4, 4)`` (per-object
-    plan); ``registration`` is the winning whole-cloud fit, ``object_fits`` the per-object fits (``A``, ``B``)."""
+    plan); ``registration`` is the winning whole-cloud fit, or in a per-object plan the grasped object's fit (then
+    ``T_now_demo`` is its motion, ``T_A``), and ``object_fits`` the per-object fits (``A``, ``B``). A per-object plan
+    registers no whole cloud."""
 
     task: str
     demo_index: int
@@ -54,23 +74,25 @@ class ReplayPlan:
 
 def plan_replay(
     task: str,
-    demonstrations: list[Demonstration],
+    demonstrations: Sequence[Demonstration | ReplaySource],
     cloud_now: np.ndarray,
     config: RegistrationConfig,
     per_object: bool = False,
 ) -> ReplayPlan:
     """Register every demonstration of ``task`` onto ``cloud_now (P, 3)`` (world frame) and plan the best one's
-    actions in the live scene: whole, or with ``per_object`` per object where the demonstration allows it."""
+    actions in the live scene: whole, or with ``per_object`` per object where the demonstration allows it. A
+    demonstration is read through its :class:`ReplaySource` (its first cloud and its actions)."""
     if not demonstrations:
         raise ValueError(f"no demonstrations of task {task!r} to replay")
-    fits = [register_rigid(demo.points_world[0], cloud_now, config) for demo in demonstrations]
+    demonstrations = [demo if isinstance(demo, ReplaySource) else ReplaySource.of(demo) for demo in demonstrations]
     if per_object:
         live_objects = split_objects(cloud_now)
-        plans = [_plan_per_object(task, index, demo, fits[index], live_objects, config)
+        plans = [_plan_per_object(task, index, demo, live_objects, config)
                  for index, demo in enumerate(demonstrations)]
         plans = [plan for plan in plans if plan is not None]
         if plans:
             return min(plans, key=lambda plan: np.mean([fit.fit_error for fit in plan.object_fits]))
+    fits = [register_rigid(demo.first_cloud, cloud_now, config) for demo in demonstrations]
     best = int(np.argmin([fit.fit_error for fit in fits]))
     T_now_demo = fits[best].T_target_source
     actions = transform_pose_actions(T_now_demo, demonstrations[best].action)
@@ -91,14 +113,13 @@ def split_objects(points: np.ndarray, gap: float = 0.02, min_fraction: float = 0
 def _plan_per_object(
     task: str,
     demo_index: int,
-    demo: Demonstration,
-    whole_fit: RegistrationResult,
+    demo: ReplaySource,
     live_objects: list[np.ndarray],
     config: RegistrationConfig,
 ) -> ReplayPlan | None:
     """The per-object plan of one demonstration (module docstring), or None where it has no grasp-and-release
     between two objects or the live cloud has fewer than two objects."""
-    demo_objects = split_objects(demo.points_world[0])
+    demo_objects = split_objects(demo.first_cloud)
     opened = demo.action[:, 7] > 0.5
     closes = np.flatnonzero(opened[:-1] & ~opened[1:]) + 1
     if len(demo_objects) < 2 or len(live_objects) < 2 or not len(closes):
@@ -117,8 +138,8 @@ def _plan_per_object(
     T_world_planned = _blend(T_A @ T_world_ee, T_B @ T_world_ee, _carry_fraction(positions, close, release))
     actions = vectors_from_poses(T_world_planned, gripper_open).astype(np.float32)
     T_per_action = T_world_planned @ np.linalg.inv(T_world_ee)
-    return ReplayPlan(task=task, demo_index=demo_index, T_now_demo=whole_fit.T_target_source, actions=actions,
-                      registration=whole_fit, T_now_demo_per_action=T_per_action, object_fits=tuple(fits))
+    return ReplayPlan(task=task, demo_index=demo_index, T_now_demo=T_A, actions=actions, registration=fits[0],
+                      T_now_demo_per_action=T_per_action, object_fits=tuple(fits))
 
 
 def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None) -> int:

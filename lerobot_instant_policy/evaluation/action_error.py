@@ -61,6 +61,7 @@ from ..modeling_instant_policy import InstantPolicyPolicy
 from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
+from .replay_priors import replay_priors
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
 PHASES = ("first_third", "middle_third", "last_third")
@@ -90,12 +91,25 @@ class LiveFrame:
 
 @dataclasses.dataclass
 class HeldOutTask:
-    """A pseudo-task: its ``demos`` (all episodes but the last, in episode order) and ``frames`` of the last."""
+    """A pseudo-task: its ``demos`` (all episodes but the last, in episode order) and ``frames`` of the last, whose
+    first cloud ``live_first_points (P, 3)`` and states ``live_state (F, 8)`` place a replay (:meth:`replay_priors`)."""
 
     task: str
     live_episode: int
     demos: list[Demonstration]
     frames: list[LiveFrame]
+    live_first_points: np.ndarray
+    live_state: np.ndarray
+    _priors: dict = dataclasses.field(default_factory=dict, repr=False)
+
+    def replay_priors(self, num_demos: int, horizon: int, per_object: bool) -> np.ndarray:
+        """``(frames, T, 8)``: the replay prior of every frame from the first ``num_demos`` demonstrations
+        (:func:`.replay_priors.replay_priors`), planned once per setting."""
+        key = (num_demos, horizon, per_object)
+        if key not in self._priors:
+            self._priors[key] = replay_priors(self.demos[:num_demos], self.live_first_points, self.live_state,
+                                              [frame.t for frame in self.frames], horizon, per_object)
+        return self._priors[key]
 
 
 # ---------------------------------------------------------------------------------------------------- errors
@@ -192,21 +206,27 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
             noise_seed = int(np.random.SeedSequence([seed, task_number, t]).generate_state(1)[0])
             phase = min(len(PHASES) - 1, len(PHASES) * t // live.num_frames)
             frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed, phase))
-        held_out.append(HeldOutTask(task, episodes[-1], demos, frames))
+        held_out.append(HeldOutTask(task, episodes[-1], demos, frames, live.points_world[0], live.state))
     return held_out
 
 
 # ---------------------------------------------------------------------------------------------------- inference
-def predict_task(policy: InstantPolicyPolicy, held_out: HeldOutTask, k: int) -> list[np.ndarray]:
-    """``(T, 8)`` predictions at every frame of ``held_out`` with K = ``k`` DDIM steps (context already set), one frame
-    at a time with its own seeded generator."""
+def predict_task(policy: InstantPolicyPolicy, held_out: HeldOutTask, k: int, n: int) -> list[np.ndarray]:
+    """``(T, 8)`` predictions at every frame of ``held_out`` with K = ``k`` DDIM steps (context of ``n``
+    demonstrations already set), one frame at a time with its own seeded generator; a policy that starts from the
+    replay (``replay_init_strength``) from the frame's replay prior (:meth:`HeldOutTask.replay_priors`)."""
     device = next(policy.parameters()).device
+    config = policy.config
+    priors = held_out.replay_priors(n, config.horizon, config.replay_per_object) if config.replay_init_strength \
+        else [None] * len(held_out.frames)
     predictions = []
-    for frame in held_out.frames:
+    for frame, prior in zip(held_out.frames, priors, strict=True):
         batch = {POINTCLOUD_KEY: torch.from_numpy(frame.points[None]).to(device),
                  STATE_KEY: torch.from_numpy(frame.state[None]).to(device), "task": [held_out.task]}
         generator = torch.Generator(device="cpu").manual_seed(frame.noise_seed)
-        chunk = policy.predict_action_chunk(batch, generator=generator, num_inference_steps=k)
+        initial = None if prior is None else torch.from_numpy(prior[None]).to(device)
+        chunk = policy.predict_action_chunk(batch, generator=generator, num_inference_steps=k,
+                                            initial_actions=initial)
         predictions.append(chunk[0].double().cpu().numpy())
     return predictions
 
@@ -219,7 +239,7 @@ def evaluate_setting(policy: InstantPolicyPolicy, tasks: list[HeldOutTask], sett
     for held_out in tasks:
         policy.set_demonstrations(held_out.demos[:n], num_waypoints=l)
         start = time.perf_counter()
-        predictions = predict_task(policy, held_out, k)
+        predictions = predict_task(policy, held_out, k, n)
         seconds += time.perf_counter() - start
         errors += [chunk_errors(p, f.target.astype(np.float64)) for p, f in zip(predictions, held_out.frames)]
     phases = [frame.phase for held_out in tasks for frame in held_out.frames]
@@ -240,13 +260,23 @@ def hold_reference(tasks: list[HeldOutTask]) -> dict:
     return summarise(errors, [f.phase for f in frames], task_of_frames(tasks))
 
 
+def replay_reference(tasks: list[HeldOutTask], num_demos: int, horizon: int, per_object: bool) -> dict:
+    """Errors of the replay priors themselves (:meth:`HeldOutTask.replay_priors` from ``num_demos``
+    demonstrations), what a policy that starts from them is compared with."""
+    frames = [f for held in tasks for f in held.frames]
+    priors = [prior for held in tasks for prior in held.replay_priors(num_demos, horizon, per_object)]
+    errors = [chunk_errors(prior.astype(np.float64), f.target.astype(np.float64)) for prior, f in zip(priors, frames)]
+    return summarise(errors, [f.phase for f in frames], task_of_frames(tasks))
+
+
 def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
-    """Each task with the next task's demonstrations (the last with the first's), relabelled as its own."""
+    """Each task with the next task's demonstrations (the last with the first's), relabelled as its own (and replay
+    priors planned from them)."""
     if len(tasks) < 2:
         raise ActionErrorError("the context swap needs at least 2 pseudo-tasks")
     return [
         dataclasses.replace(held, demos=[dataclasses.replace(demo, task=held.task)
-                                         for demo in tasks[(index + 1) % len(tasks)].demos])
+                                         for demo in tasks[(index + 1) % len(tasks)].demos], _priors={})
         for index, held in enumerate(tasks)
     ]
 
@@ -406,15 +436,23 @@ class Probe:
 
 def open_probe(policy_path: str | Path, root: str | Path, settings: list[tuple[int, int, int]], tasks: int = 12,
                frames_per_task: int = 4, seed: int = 0, repo_id: str | None = None, device: str = "cpu",
-               samples_per_prediction: int | None = None) -> Probe:
+               samples_per_prediction: int | None = None, replay_init_strength: float | None = None,
+               replay_per_object: bool | None = None) -> Probe:
     """The checkpoint at ``policy_path`` and the first ``tasks`` held-out pseudo-tasks at ``root``, once every
     ``(K, N, L)`` of ``settings`` is known to be evaluable: in the config's ranges (:func:`check_setting`, before the
-    weights load), N below each task's episodes, the dataset's clouds the checkpoint's size. ``ActionErrorError`` /
+    weights load), N below each task's episodes, the dataset's clouds the checkpoint's size. ``samples_per_prediction``,
+    ``replay_init_strength`` and ``replay_per_object`` replace the checkpoint's (None: kept). ``ActionErrorError`` /
     ``EvaluationError`` / ``DemonstrationError`` naming the problem."""
     config = checkpoint_config(Checkpoint(step=0, path=Path(policy_path)))
     for setting in settings:
         check_setting(config, setting, samples_per_prediction)
-    overrides = {} if samples_per_prediction is None else {"samples_per_prediction": samples_per_prediction}
+    overrides = {name: value for name, value in (("samples_per_prediction", samples_per_prediction),
+                                                 ("replay_init_strength", replay_init_strength),
+                                                 ("replay_per_object", replay_per_object)) if value is not None}
+    try:
+        dataclasses.replace(config, **overrides)
+    except ValueError as error:
+        raise ActionErrorError(str(error)) from error
     policy = load_policy(policy_path, device, **overrides)
     config = policy.config
     held_out = load_held_out_tasks(root, tasks, frames_per_task, config.horizon, seed, repo_id)
@@ -434,6 +472,7 @@ def open_probe(policy_path: str | Path, root: str | Path, settings: list[tuple[i
         "frames": sum(len(task.frames) for task in held_out), "horizon_T": config.horizon, "seed": seed,
         "checkpoint_defaults": {"K": config.inference_steps, "N": config.num_demos, "L": config.num_waypoints},
         "samples_per_prediction": config.samples_per_prediction,
+        "replay_init_strength": config.replay_init_strength, "replay_per_object": config.replay_per_object,
     }
     return Probe(policy, held_out, description)
 
@@ -442,7 +481,9 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
     """The references at the setting of ``own`` (an :func:`evaluate_setting` row of ``probe``): ``swap`` (another
     task's demonstrations), ``context_gain`` (swap / own), ``untrained`` (the same config freshly initialised,
     ``torch.manual_seed(0)``; only with ``untrained``), ``hold`` (predicting the current state), ``phases``
-    (:func:`phase_table`), ``per_task`` (:func:`task_table`) and ``intervals`` (:func:`task_intervals`)."""
+    (:func:`phase_table`), ``per_task`` (:func:`task_table`) and ``intervals`` (:func:`task_intervals`); for a
+    policy that starts from the replay, also ``replay`` (the replay priors' own errors, :func:`replay_reference`),
+    each task's ``replay_mm`` and the intervals of ``vs_replay`` (own / replay) and ``replay_vs_holding_still``."""
     setting = (own["K"], own["N"], own["L"])
     result = {"swap": evaluate_setting(probe.policy, swapped_context(probe.tasks), setting)}
     result["context_gain"] = context_gain(own, result["swap"])
@@ -456,12 +497,38 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
     result["phases"] = phase_table(own, result["hold"], result["swap"])
     result["per_task"] = task_table(probe.tasks, own, result["hold"], result["swap"])
     result["intervals"] = task_intervals(result["per_task"])
+    config = probe.policy.config
+    if config.replay_init_strength:
+        result["replay"] = replay_reference(probe.tasks, own["N"], config.horizon, config.replay_per_object)
+        for row, replay_mm in zip(result["per_task"], result["replay"]["translation_mm_by_task"], strict=True):
+            row["replay_mm"] = replay_mm
+        result["intervals"].update(replay_intervals(result["per_task"]))
+    return result
+
+
+def replay_intervals(per_task: list[dict], resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> dict:
+    """The ratios ``vs_replay`` (own / replay) and ``replay_vs_holding_still`` (replay / hold) of the mean translation
+    errors of a :func:`task_table` with ``replay_mm``, each ``{"value", "ci95"}`` (tasks resampled as in
+    :func:`task_intervals`)."""
+    frames = np.array([row["frames"] for row in per_task], dtype=float)
+    sums = {name: frames * np.array([row[f"{name}_mm"] for row in per_task], dtype=float)
+            for name in ("own", "hold", "replay")}
+    every = np.arange(len(per_task))
+    result = {}
+    for name, (numerator, denominator) in {"vs_replay": ("own", "replay"),
+                                           "replay_vs_holding_still": ("replay", "hold")}.items():
+        def ratio(draws, numerator=numerator, denominator=denominator):
+            return sums[numerator][draws].sum(axis=-1) / sums[denominator][draws].sum(axis=-1)
+
+        low, high = cluster_bootstrap(ratio, len(per_task), resamples, seed)
+        result[name] = {"value": round(float(ratio(every)), 4), "ci95": _interval(low, high)}
     return result
 
 
 def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, frames_per_task: int = 4, seed: int = 0,
                  k: int = DEFAULT_K, n: int = DEFAULT_N, l: int = DEFAULT_L, untrained: bool = True,
-                 repo_id: str | None = None, device: str = "cpu", samples_per_prediction: int | None = None) -> dict:
+                 repo_id: str | None = None, device: str = "cpu", samples_per_prediction: int | None = None,
+                 replay_init_strength: float | None = None, replay_per_object: bool | None = None) -> dict:
     """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` at K = ``k``, N = ``n``,
     L = ``l`` (module docstring).
 
@@ -473,7 +540,7 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     """
     start = time.perf_counter()
     probe = open_probe(policy_path, root, [(k, n, l)], tasks, frames_per_task, seed, repo_id, device,
-                       samples_per_prediction)
+                       samples_per_prediction, replay_init_strength, replay_per_object)
     own = evaluate_setting(probe.policy, probe.tasks, (k, n, l))
     result = {**probe.description, "settings": [own], **references(probe, own, untrained)}
     result["wall_s"] = round(time.perf_counter() - start, 1)

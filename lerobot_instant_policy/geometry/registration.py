@@ -16,7 +16,8 @@ need not have the same size, sampling or visible part of the object.
 
 ICP is point-to-point: nearest neighbours in the target (``scipy.spatial.cKDTree``), the ``overlap`` fraction of
 closest pairs kept (trimmed ICP, for partial overlap), then the best rigid transform of those pairs (Kabsch /
-SVD through ``scipy.spatial.transform.Rotation.align_vectors``, or its closed form for a yaw about z).
+SVD through ``scipy.spatial.transform.Rotation.align_vectors``, or its closed form for a yaw about z). The ICP runs
+from all guesses of a stage go together, one nearest-neighbour query per iteration, each stopping on its own.
 """
 
 from __future__ import annotations
@@ -108,20 +109,18 @@ def register_rigid(
     coarse_target = _subsample(fine_target, config.coarse_points, rng)
     coarse_tree = cKDTree(coarse_target)
 
-    coarse = []
-    for initial in _initial_guesses(source, target, config.yaw_only, config.yaw_samples):
-        pose, _, _ = _icp(coarse_source, coarse_tree, coarse_target, initial, config, config.coarse_iterations)
-        coarse.append((_fit_error(pose, fine_source, fine_tree, fine_target, config.inlier_distance)[0], pose))
-    coarse.sort(key=lambda scored: scored[0])
+    initials = np.stack(_initial_guesses(source, target, config.yaw_only, config.yaw_samples))
+    coarse, _, _ = _icp(coarse_source, coarse_tree, coarse_target, initials, config, config.coarse_iterations)
+    scores = [_fit_error(pose, fine_source, fine_tree, fine_target, config.inlier_distance)[0] for pose in coarse]
+    ranked = coarse[np.argsort(scores, kind="stable")[: config.refined_candidates]]
 
+    poses, residuals, iterations = _icp(fine_source, fine_tree, fine_target, ranked, config, config.fine_iterations)
     best = None
-    for _, initial in coarse[: config.refined_candidates]:
-        pose, residual, iterations = _icp(fine_source, fine_tree, fine_target, initial, config, config.fine_iterations)
+    for pose, residual, count in zip(poses, residuals, iterations, strict=True):
         fit_error, inlier_ratio = _fit_error(pose, fine_source, fine_tree, fine_target, config.inlier_distance)
         if best is None or fit_error < best.fit_error:
-            best = RegistrationResult(
-                T_target_source=pose, residual=residual, fit_error=fit_error, inlier_ratio=inlier_ratio, iterations=iterations
-            )
+            best = RegistrationResult(T_target_source=pose, residual=float(residual), fit_error=fit_error,
+                                      inlier_ratio=inlier_ratio, iterations=int(count))
     return best
 
 
@@ -191,7 +190,7 @@ def _initial_guesses(source: np.ndarray, target: np.ndarray, yaw_only: bool, yaw
         base = _planar_principal_angle(target) - _planar_principal_angle(source)
         yaws = [base + quarter * np.pi / 2 for quarter in range(4)]
         yaws += list(np.linspace(-np.pi, np.pi, yaw_samples, endpoint=False))
-        rotations = [Rotation.from_euler("z", yaw).as_matrix() for yaw in yaws]
+        rotations = [_yaw_matrix(yaw) for yaw in yaws]
     else:
         source_axes, target_axes = _principal_axes(source), _principal_axes(target)
         rotations = [target_axes @ permutation @ source_axes.T for permutation in _AXIS_PERMUTATIONS]
@@ -202,38 +201,73 @@ def _icp(
     source: np.ndarray,
     tree: cKDTree,
     target: np.ndarray,
-    initial: np.ndarray,
+    initials: np.ndarray,
     config: RegistrationConfig,
     max_iterations: int,
-) -> tuple[np.ndarray, float, int]:
-    """Trimmed point-to-point ICP from ``initial``; returns the pose, its trimmed RMS residual and the iterations."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Trimmed point-to-point ICP from each of ``initials (C, 4, 4)``, all run together (one nearest-neighbour query
+    and one batched fit per iteration for the runs still going), each stopping on its own once its trimmed residual
+    improves by less than ``config.tolerance``. Returns the poses ``(C, 4, 4)``, their trimmed RMS residuals ``(C,)``
+    and the iterations each ran ``(C,)``."""
     keep = max(3, int(round(config.overlap * len(source))))
-    pose = initial
-    previous = np.inf
-    residual = np.inf
+    poses = np.array(initials, dtype=np.float64)
+    previous = np.full(len(poses), np.inf)
+    residuals = np.full(len(poses), np.inf)
+    iterations = np.full(len(poses), max_iterations)
+    running = np.arange(len(poses))
     for iteration in range(1, max_iterations + 1):
-        moved = transform_points(pose, source)
-        distances, indices = tree.query(moved)
-        kept = np.argpartition(distances, keep - 1)[:keep]
-        residual = float(np.sqrt(np.mean(distances[kept] ** 2)))
-        if previous - residual < config.tolerance:
-            return pose, residual, iteration
-        previous = residual
-        pose = _best_rigid_transform(source[kept], target[indices[kept]], config.yaw_only)
-    moved = transform_points(pose, source)
-    distances, _ = tree.query(moved)
-    residual = float(np.sqrt(np.mean(np.partition(distances, keep - 1)[:keep] ** 2)))
-    return pose, residual, max_iterations
+        distances, indices = _nearest(poses[running], source, tree)
+        kept = np.argpartition(distances, keep - 1, axis=1)[:, :keep]
+        residual = np.sqrt(np.mean(np.take_along_axis(distances, kept, axis=1) ** 2, axis=1))
+        done = previous[running] - residual < config.tolerance
+        residuals[running[done]] = residual[done]
+        iterations[running[done]] = iteration
+        previous[running] = residual
+        running, kept, indices = running[~done], kept[~done], indices[~done]
+        if not len(running):
+            return poses, residuals, iterations
+        matched = target[np.take_along_axis(indices, kept, axis=1)]
+        poses[running] = _best_rigid_transforms(source[kept], matched, config.yaw_only)
+    distances, _ = _nearest(poses[running], source, tree)
+    residuals[running] = np.sqrt(np.mean(np.partition(distances, keep - 1, axis=1)[:, :keep] ** 2, axis=1))
+    return poses, residuals, iterations
 
 
-def _best_rigid_transform(source: np.ndarray, target: np.ndarray, yaw_only: bool) -> np.ndarray:
-    """Least-squares ``T`` with ``T · source[i] ≈ target[i]`` for paired points ``(N, 3)`` (Kabsch)."""
-    source_centroid, target_centroid = source.mean(axis=0), target.mean(axis=0)
-    source_centred, target_centred = source - source_centroid, target - target_centroid
+def _nearest(poses: np.ndarray, source: np.ndarray, tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
+    """Distances and indices ``(R, P)`` of the nearest target point (``tree``) to each point of ``source (P, 3)``
+    moved by each of ``poses (R, 4, 4)``."""
+    moved = source[None] @ poses[:, :3, :3].transpose(0, 2, 1) + poses[:, None, :3, 3]
+    distances, indices = tree.query(moved.reshape(-1, 3))
+    return distances.reshape(len(poses), -1), indices.reshape(len(poses), -1)
+
+
+def _yaw_matrix(yaw: float) -> np.ndarray:
+    """The rotation by ``yaw`` (rad) about z, ``(3, 3)``."""
+    cos, sin = np.cos(yaw), np.sin(yaw)
+    return np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _best_rigid_transforms(source: np.ndarray, target: np.ndarray, yaw_only: bool) -> np.ndarray:
+    """Least-squares ``T`` with ``T · source[r, i] ≈ target[r, i]`` for each row ``r`` of paired points
+    ``(R, N, 3)`` (Kabsch), ``(R, 4, 4)``; with ``yaw_only`` the closed-form rotation about z."""
+    source_centroid, target_centroid = source.mean(axis=1), target.mean(axis=1)
+    source_centred, target_centred = source - source_centroid[:, None], target - target_centroid[:, None]
     if yaw_only:
-        cross = np.sum(source_centred[:, 0] * target_centred[:, 1] - source_centred[:, 1] * target_centred[:, 0])
-        dot = np.sum(source_centred[:, 0] * target_centred[:, 0] + source_centred[:, 1] * target_centred[:, 1])
-        rotation = Rotation.from_euler("z", np.arctan2(cross, dot)).as_matrix()
+        cross = np.sum(source_centred[..., 0] * target_centred[..., 1] - source_centred[..., 1] * target_centred[..., 0],
+                       axis=1)
+        dot = np.sum(source_centred[..., 0] * target_centred[..., 0] + source_centred[..., 1] * target_centred[..., 1],
+                     axis=1)
+        norm = np.hypot(cross, dot)
+        cos = np.where(norm > 0.0, dot / np.where(norm > 0.0, norm, 1.0), 1.0)
+        sin = np.where(norm > 0.0, cross / np.where(norm > 0.0, norm, 1.0), 0.0)
+        rotations = np.zeros((len(source), 3, 3))
+        rotations[:, 0, 0], rotations[:, 0, 1], rotations[:, 1, 0], rotations[:, 1, 1] = cos, -sin, sin, cos
+        rotations[:, 2, 2] = 1.0
     else:
-        rotation = Rotation.align_vectors(target_centred, source_centred)[0].as_matrix()
-    return make_pose(target_centroid - rotation @ source_centroid, rotation)
+        rotations = np.stack([Rotation.align_vectors(target_row, source_row)[0].as_matrix()
+                              for target_row, source_row in zip(target_centred, source_centred, strict=True)])
+    poses = np.zeros((len(source), 4, 4))
+    poses[:, :3, :3] = rotations
+    poses[:, :3, 3] = target_centroid - np.einsum("rij,rj->ri", rotations, source_centroid)
+    poses[:, 3, 3] = 1.0
+    return poses

@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from ..geometry.rigid_torch import invert_rigid, mean_rigid, transform_points
-from .action_diffusion import FLOW_DIM, ActionDiffusion, points_in_action_frames
+from .action_diffusion import ACTION_DIM, FLOW_DIM, ActionDiffusion, points_in_action_frames
 from .dense_graphs import DenseGraphs
 from .encodings import encoding_dim, sinusoidal_encoding
 from .geometry_encoder import GeometryEncoder
@@ -406,12 +406,23 @@ class InstantPolicyNetwork(nn.Module):
         T_ee_actions: torch.Tensor,
         action_gripper: torch.Tensor,
         generator: torch.Generator | None = None,
+        prior: torch.Tensor | None = None,
+        refined_rows: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Noise the actions at random timesteps and regress the flows and gripper at the action gripper nodes.
+
+        Training to refine: the rows ``refined_rows`` noise the ``prior`` instead of the clean actions, at a timestep
+        drawn from the first ``⌈refine_max_strength · diffusion_train_steps⌉`` (those where inference from a noised
+        prior starts), and regress the same targets, the flows from that noisy sample to the clean actions. The
+        forward process (DDPM, Ho et al. 2020, eq. 4) is the same, ``xₖ = √ᾱₖ x̃ + √(1−ᾱₖ) ε``, its ``x̃`` the
+        prior where the paper's is the clean ``x₀``.
 
         Args:
             T_ee_actions: ``(B, T, 4, 4)`` clean action poses in the current EE frame (clamped to the bounds).
             action_gripper: ``(B, T)`` gripper commands, 1 open, 0 closed.
+            prior: ``(B, T, 7)`` a guess of the diffusion variable (:meth:`ActionDiffusion.normalize` of the replay
+                prior in the current EE frame), or None (every row the paper's loss).
+            refined_rows: ``(B,)`` bool, with ``prior``: the rows that start from it.
 
         Returns:
             ``loss`` = translation + rotation + ``gripper_loss_weight`` · gripper, and its parts: ``translation`` and
@@ -429,7 +440,15 @@ class InstantPolicyNetwork(nn.Module):
             0, self.config.diffusion_train_steps, (batch,), generator=generator, device=noise_device
         ).to(device)
         noise = torch.randn(clean.shape, generator=generator, device=noise_device, dtype=clean.dtype).to(device)
-        T_noisy, gripper_noisy = self.diffusion.unnormalize(self.diffusion.add_noise(clean, noise, timesteps))
+        start = clean
+        if prior is not None:
+            self._check_tensor("prior", prior, (batch, horizon, ACTION_DIM))
+            self._check_tensor("refined_rows", refined_rows, (batch,))
+            refine_steps = math.ceil(self.config.refine_max_strength * self.config.diffusion_train_steps)
+            refine_timesteps = torch.randint(0, refine_steps, (batch,), generator=generator, device=noise_device)
+            timesteps = torch.where(refined_rows, refine_timesteps.to(device), timesteps)
+            start = torch.where(refined_rows[:, None, None], prior.to(clean.dtype).clamp(-1.0, 1.0), clean)
+        T_noisy, gripper_noisy = self.diffusion.unnormalize(self.diffusion.add_noise(start, noise, timesteps))
         T_clean, _ = self.diffusion.unnormalize(clean)
         flow_target = self.diffusion.flow_targets(T_clean, T_noisy)
         prediction = self.denoise(context, T_noisy, gripper_noisy, timesteps)

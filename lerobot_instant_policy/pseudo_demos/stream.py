@@ -31,7 +31,9 @@ A sample (a dict of tensors on ``device``, float32 unless noted), for a live fra
 - ``action (T, 8)``: its actions ``t … t + T − 1``, the last one held past its end;
 - ``observation.context.pointcloud (N, L, P, 3)``, ``observation.context.T_world_ee (N, L, 4, 4)``,
   ``observation.context.gripper_open (N, L)``: the context demonstrations' waypoints, world frame;
-- ``observation.context.id`` (int64 scalar): the task index; rows with one id share their context.
+- ``observation.context.id`` (int64 scalar): the task index; rows with one id share their context;
+- with ``StreamConfig.replay_priors``, ``observation.replay_prior (T, 8)``: the replay prior of actions ``t … t + T − 1``
+  (:mod:`.replay_priors`), world frame.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ from ..contract import (
     CONTEXT_T_WORLD_EE_KEY,
     NUM_POINTS,
     POINTCLOUD_KEY,
+    REPLAY_PRIOR_KEY,
     STATE_KEY,
 )
 from ..data.context_bank import waypoint_frames
@@ -60,6 +63,7 @@ from ..data.demonstrations import DemonstrationError
 from ..objects.splatting import DEFAULT_SURFACE_SAMPLES, SplatConfig, SplatRenderer, resample_visible
 from .generation import GenerationConfig, PlannedTask, plan_task
 from .replay import GenerationError, splat_inputs
+from .replay_priors import replay_prior_actions
 
 _LIVE_STREAM = 4  # the live frames of task i are drawn from the random stream (seed, i, 4)
 _RESAMPLE_STREAM = 5  # and its clouds resampled ("fpsample") from (seed, i, 5)
@@ -79,7 +83,9 @@ class StreamConfig:
     rendered in one splatting call (memory grows with it: a few hundred bytes per surface sample, camera and
     cloud). Splatting: ``surface_samples`` per object, ``zbuffer_resolution`` ``(w, h)``, ``splat_radius`` (pixels)
     and ``depth_tolerance`` (m), as :class:`~..objects.splatting.SplatConfig`; ``resampling`` one of
-    ``RESAMPLINGS`` (see the module docstring).
+    ``RESAMPLINGS`` (see the module docstring). ``replay_priors``: each sample also carries the live frame's replay
+    prior (:mod:`.replay_priors`, the live demonstration's first cloud rendered for it, one cloud more per task),
+    planned per object with ``replay_per_object``.
     """
 
     generation: GenerationConfig = field(default_factory=GenerationConfig)
@@ -94,6 +100,8 @@ class StreamConfig:
     splat_radius: int = 1
     depth_tolerance: float = 0.006
     resampling: str = "auto"
+    replay_priors: bool = False
+    replay_per_object: bool = True
 
     def __post_init__(self) -> None:
         self.validate()
@@ -165,10 +173,12 @@ def check_place(rank: int, world_size: int, start_task: int) -> None:
 @dataclass
 class RenderedTask:
     """One planned task's rendered frames: ``clouds (N·L + S, P, 3)`` world frame, on the stream's device, its ``N · L``
-    context waypoints (demonstration-major) then its ``S`` live frames."""
+    context waypoints (demonstration-major) then its ``S`` live frames; with ``StreamConfig.replay_priors`` the live
+    frames' replay priors ``replay_prior (S, T, 8)`` (:mod:`.replay_priors`), else None."""
 
     frames: _TaskFrames
     clouds: torch.Tensor
+    replay_prior: np.ndarray | None = None
 
     @property
     def task_index(self) -> int:
@@ -274,9 +284,21 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
         for frames, clouds in zip(tasks, self._render(tasks) if tasks else []):
             if clouds is None:
                 self.skipped_tasks += 1
+            elif self.config.replay_priors:
+                rendered.append(self._with_replay_prior(frames, clouds))
             else:
                 rendered.append(RenderedTask(frames, clouds))
         return rendered
+
+    def _with_replay_prior(self, frames: _TaskFrames, clouds: torch.Tensor) -> RenderedTask:
+        """The rendered task of ``clouds`` (its frames, then the live demonstration's first cloud) with its replay
+        prior, planned from the first context demonstration's first waypoint cloud (every demonstration's frame 0 is
+        its first waypoint) onto that first cloud."""
+        task = RenderedTask(frames, clouds[:-1])
+        context_first = task.context_clouds[0, 0].cpu().numpy()
+        task.replay_prior = replay_prior_actions(frames.planned, context_first, clouds[-1].cpu().numpy(), frames.live,
+                                                 self.config.horizon, self.config.replay_per_object)
+        return task
 
     def _plan(self, task_index: int) -> _TaskFrames | None:
         """Task ``task_index`` planned with ``N + 1`` demonstrations and the frames to render; None (counted as
@@ -298,8 +320,8 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
 
     def _render(self, tasks: list[_TaskFrames]) -> list[torch.Tensor | None]:
         """Every cloud of ``tasks`` from one :class:`SplatRenderer` call: per task ``(N·L + S, P, 3)`` on
-        ``device``, its ``N · L`` context waypoints (demonstration-major) then its ``S`` live frames, or None when
-        one of them shows no object point."""
+        ``device``, its ``N · L`` context waypoints (demonstration-major) then its ``S`` live frames (and, with
+        ``replay_priors``, the live demonstration's first frame), or None when one of them shows no object point."""
         if self._renderer is None:
             self._renderer = SplatRenderer(self.config.splat_config(), self.device)
         per_task = []
@@ -307,6 +329,8 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
             demos = frames.planned.demos
             scenes = [(demo, frame) for demo, row in zip(demos, frames.chosen) for frame in row]
             scenes += [(demos[-1], frame) for frame in frames.live]
+            if self.config.replay_priors:
+                scenes.append((demos[-1], 0))
             per_task.append(splat_inputs(frames.planned.objects, scenes, self.config.surface_samples))
         inputs = {key: torch.cat([task_inputs[key] for task_inputs in per_task]) for key in per_task[0]}
         bounds = np.cumsum([0, *(len(task_inputs["T_world_ee"]) for task_inputs in per_task)])
@@ -339,9 +363,13 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
             CONTEXT_ID_KEY: torch.tensor(task.task_index, dtype=torch.int64, device=device),
         }
         state, actions = task.live_states_and_actions(self.config.horizon)
-        return [{POINTCLOUD_KEY: cloud, STATE_KEY: torch.as_tensor(state[index], device=device),
-                 ACTION_KEY: torch.as_tensor(actions[index], device=device), **context}
-                for index, cloud in enumerate(task.live_clouds)]
+        samples = [{POINTCLOUD_KEY: cloud, STATE_KEY: torch.as_tensor(state[index], device=device),
+                    ACTION_KEY: torch.as_tensor(actions[index], device=device), **context}
+                   for index, cloud in enumerate(task.live_clouds)]
+        if task.replay_prior is not None:
+            for sample, prior in zip(samples, task.replay_prior, strict=True):
+                sample[REPLAY_PRIOR_KEY] = torch.as_tensor(prior, device=device)
+        return samples
 
 
 __all__ = ["PseudoTaskStream", "RenderedTask", "StreamConfig", "check_place"]

@@ -136,3 +136,22 @@ def test_stream_benchmark_refuses_non_positive_sizes(capsys):
     with pytest.raises(SystemExit):
         main(["pool", "--capacity", "4", "--min-tasks", "5"])
     assert "must not exceed capacity" in capsys.readouterr().err
+
+
+def test_the_priors_benchmark_times_both_variants_on_the_same_tasks(capsys, tmp_path):
+    """Seconds per task of a generator's work without and with replay priors, alternating blocks of the same tasks:
+    the ratio is of the two medians, the task rate its inverse."""
+    from lerobot_instant_policy.cli.bench import main
+
+    config = tmp_path / "stream.json"
+    config.write_text(json.dumps({"seed": 3, "object_pool": ["pb/cube", "pb/duck"]}))
+    assert main(["priors", "--config", str(config), "--tasks", "2", "--samples-per-task", "1",
+                 "--surface-samples", "1024", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    seconds = result["seconds_per_task"]
+    assert result["blocks"] == 2 and seconds["with"] > 0 and seconds["without"] > 0
+    assert result["ratio_with_to_without"] == pytest.approx(seconds["with"] / seconds["without"])
+    assert result["task_rate_with_priors"] == pytest.approx(1 / result["ratio_with_to_without"])
+    assert result["stream"]["surface_samples"] == 1024
+    with pytest.raises(SystemExit):
+        main(["priors", "--tasks", "0"])

@@ -93,9 +93,9 @@ def test_k_changes_the_prediction_itself(held_out_root):
     policy = ae.InstantPolicyPolicy.from_pretrained(SHIPPED).eval()
     (task,) = ae.load_held_out_tasks(held_out_root, 1, 1, policy.config.horizon, seed=0)
     policy.set_demonstrations(task.demos[:2], num_waypoints=10)
-    one = ae.predict_task(policy, task, 1)
-    four = ae.predict_task(policy, task, 4)
-    four_again = ae.predict_task(policy, task, 4)
+    one = ae.predict_task(policy, task, 1, 2)
+    four = ae.predict_task(policy, task, 4, 2)
+    four_again = ae.predict_task(policy, task, 4, 2)
     assert not np.allclose(one[0], four[0]) and np.array_equal(four[0], four_again[0])
     assert policy.config.inference_steps == 4  # K is an argument: the loaded config is left as it was
 
@@ -279,3 +279,50 @@ def test_paired_ratio_difference_resamples_tasks_jointly_and_refuses_other_frame
                            ({key: value for key, value in b.items() if key != "per_task"}, "lacks per_task")):
         with pytest.raises(ae.ActionErrorError, match=message):
             ae.paired_ratio_difference(a, other)
+
+
+def test_plan_steps_follow_a_plan_at_another_pace():
+    """A live episode that moves along the plan's path at half its pace is matched frame 2i → step i; the plan itself
+    is matched to itself; gripper states keep a pause before the grasp on the right side of it."""
+    from lerobot_instant_policy.evaluation.replay_priors import plan_steps
+
+    path = np.zeros((20, 8))
+    path[:, 0] = np.linspace(0.0, 0.19, 20)
+    path[:, 6] = 1.0
+    path[:, 7] = (np.arange(20) < 12).astype(float)
+    assert np.array_equal(plan_steps(path, path), np.arange(20))
+    slow = np.repeat(path, 2, axis=0)
+    matched = plan_steps(slow, path)
+    assert np.array_equal(matched, np.arange(40) // 2)
+    still = np.concatenate([path[:12], np.repeat(path[11:12], 5, axis=0), path[12:]])  # a pause before closing
+    matched = plan_steps(still, path)
+    assert matched[0] == 0 and matched[-1] == 19 and np.all(np.diff(matched) >= 0)
+    assert np.all(matched[12:17] == 11)
+
+
+def test_a_policy_that_starts_from_the_replay_is_judged_beside_the_replay(held_out_root, monkeypatch):
+    """With a replay strength every prediction (own and swapped) is handed the frame's replay prior, planned from
+    the setting's N demonstrations; the result holds the replay's own errors per task and the ratio own / replay
+    with its interval; a strength outside (0, 1] is refused before the weights load."""
+    from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+
+    predict, handed = InstantPolicyPolicy.predict_action_chunk, []
+    monkeypatch.setattr(InstantPolicyPolicy, "predict_action_chunk",
+                        lambda self, batch, **k: handed.append(k["initial_actions"]) or predict(self, batch, **k))
+    result = _run(held_out_root, replay_init_strength=0.25, replay_per_object=True)
+    assert result["replay_init_strength"] == 0.25 and result["replay_per_object"] is True
+    tasks = ae.load_held_out_tasks(held_out_root, 2, 1, 8, seed=0)
+    expected = [task.replay_priors(2, 8, True)[0] for task in tasks]
+    assert len(handed) == 4 and all(np.allclose(handed[i][0].numpy(), expected[i]) for i in range(2))
+    assert not np.allclose(handed[2][0].numpy(), expected[0])  # the swap plans from the other task's demonstrations
+    replay_mm = [row["replay_mm"] for row in result["per_task"]]
+    pooled = sum(mm * row["frames"] for mm, row in zip(replay_mm, result["per_task"])) / result["frames"]
+    assert pooled == pytest.approx(result["replay"]["translation_mm"], abs=0.01)
+    own = result["settings"][0]["translation_mm"]
+    assert result["intervals"]["vs_replay"]["value"] == pytest.approx(own / result["replay"]["translation_mm"],
+                                                                      abs=1e-3)
+    low, high = result["intervals"]["vs_replay"]["ci95"]
+    assert low <= high
+    assert "replay" not in _run(held_out_root)  # the faithful path: no replay reference
+    with pytest.raises(ae.ActionErrorError, match=r"replay_init_strength must lie in \(0, 1\]"):
+        _run(held_out_root, replay_init_strength=1.5)

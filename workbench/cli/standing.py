@@ -68,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     paired.add_argument("--device", default=defaults.device)
     for name in ("val_tasks", "val_frames_per_task", "val_workers"):
         paired.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
+    paired.add_argument("--replay-init-strength", type=float,
+                        help="validate every checkpoint started from the replay, noised to this strength")
+    paired.add_argument("--replay-per-object", choices=["true", "false"], help="that replay planned per object")
     mean = commands.add_parser("average", help="write the mean of saves' weights as a pretrained_model")
     mean.add_argument("checkpoints", type=Path, nargs="+", help="pretrained_model folders or saves holding one")
     mean.add_argument("--out", type=Path, required=True, help="a new folder for the averaged pretrained_model")
@@ -85,7 +88,10 @@ def main(argv: list[str] | None = None) -> int:
             result = accept(args.folder, args.standing, args.curve)
         elif args.command == "compare":
             config = StandingConfig(work=args.work, device=args.device, val_tasks=args.val_tasks,
-                                    val_frames_per_task=args.val_frames_per_task, val_workers=args.val_workers)
+                                    val_frames_per_task=args.val_frames_per_task, val_workers=args.val_workers,
+                                    replay_init_strength=args.replay_init_strength,
+                                    replay_per_object=None if args.replay_per_object is None
+                                    else args.replay_per_object == "true")
             config.validate()
             result = compare(config, args.checkpoints, Path(args.work) / "validation")
         elif args.command == "average":

@@ -52,7 +52,7 @@ def captured_states(policy, tasks) -> dict[str, list[np.ndarray]]:
     try:
         for held in tasks:
             policy.set_demonstrations(held.demos[:2], num_waypoints=10)
-            predict_task(policy, held, policy.config.inference_steps)
+            predict_task(policy, held, policy.config.inference_steps, 2)
     finally:
         for handle in handles:
             handle.remove()

@@ -41,7 +41,7 @@ def frame_errors(policy, tasks) -> dict[tuple[str, int], float]:
     errors = {}
     for held in tasks:
         policy.set_demonstrations(held.demos[:2], num_waypoints=10)
-        for prediction, frame in zip(predict_task(policy, held, 4), held.frames, strict=True):
+        for prediction, frame in zip(predict_task(policy, held, 4, 2), held.frames, strict=True):
             errors[held.task, frame.t] = float(chunk_errors(prediction, frame.target.astype(np.float64))
                                                ["translation_mm"].mean())
     return errors

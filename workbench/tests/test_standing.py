@@ -365,7 +365,8 @@ def test_compare_validates_each_checkpoint_once_and_pairs_the_rest_against_the_f
     config = StandingConfig(work=str(tmp_path / "work"), val_tasks=2, val_frames_per_task=1)
     runs = []
     real_run = standing_module.subprocess.run
-    monkeypatch.setattr(standing_module.subprocess, "run", lambda *a, **k: runs.append(k) or real_run(*a, **k))
+    monkeypatch.setattr(standing_module.subprocess, "run",
+                        lambda *a, **k: runs.append({**k, "command": a[0]}) or real_run(*a, **k))
     result = standing_module.compare(config, [standing_module.SHIPPED, copy.parent], root)
     assert len(runs) == 2  # one lerobot-ip-action-error per set, for the first; the copy came from the cache
     assert all(run["env"]["OMP_NUM_THREADS"] == "1" for run in runs)  # one thread beside the training
@@ -385,6 +386,17 @@ def test_compare_validates_each_checkpoint_once_and_pairs_the_rest_against_the_f
         standing_module.compare(config, [tmp_path], root)
     other_size = StandingConfig(work=str(tmp_path / "work"), val_tasks=1, val_frames_per_task=1)
     assert standing_module.validation_key(other_size) != standing_module.validation_key(config)
+    # started from the replay: its own cache entry, the flags on the command, the replay's figures beside the policy's
+    assert main(["compare", str(standing_module.SHIPPED), "--work", str(tmp_path / "work"), "--val-tasks", "2",
+                 "--val-frames-per-task", "1", "--replay-init-strength", "0.25", "--replay-per-object", "true"]) == 0
+    replayed = json.loads(capsys.readouterr().out)["checkpoints"][0]["validation"]
+    assert len(runs) == 4 and runs[-1]["command"][-4:] == ["--replay-init-strength", "0.25", "--replay-per-object",
+                                                           "true"]
+    for name in standing_module.VALIDATION_CONFIGS:
+        figures = replayed[name]
+        assert figures["vs_replay"] == pytest.approx(figures["translation_mm"] / (
+            figures["hold_translation_mm"] * figures["replay_vs_holding_still"]), rel=1e-3)
+        assert figures["vs_replay_interval"][0] <= figures["vs_replay"] <= figures["vs_replay_interval"][1]
 
 
 def test_the_best_holds_the_moving_average_where_it_validated_closer_than_the_raw_weights(tmp_path):

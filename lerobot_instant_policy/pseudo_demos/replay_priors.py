@@ -1,0 +1,68 @@
+"""The replay prior of a pseudo-task's live demonstration: what the ``demo_replay`` plan of its context would have
+the robot do at each live frame, the guess that training to refine (``InstantPolicyConfig.refine_fraction``) starts
+the denoising from.
+
+The plan is the one inference makes (:func:`~..data.replay_plan.plan_replay`, yaw-only registration, per object or
+whole), of the first context demonstration: its first cloud registered onto the live demonstration's first cloud, its
+actions moved into the live scene. Only the first, because a training batch draws its N per batch and keeps the
+first N demonstrations of each context (``InstantPolicyPolicy.forward``): the first is in every context the network
+sees, and a plan from another could replay a demonstration the context does not hold (inference plans from the
+demonstrations it is given). It also halves the registrations a generator runs. The plan's actions are then re-timed
+to the live demonstration.
+At inference the robot follows the plan, so planned action ``k`` is the guess at control step ``k``; in training the
+target is another demonstrator's trajectory whose pace differs (its own start pose, path lengths and stops), and the
+plan's action at the same frame index would ask the network to re-time the plan as well as correct it. Both
+demonstrations pass the task's waypoints in the same order (``DemoPlan.waypoint_frames``), so live frame ``t`` maps
+to the planned demonstration's frame by linear interpolation between the frames where the two reach the same
+waypoint (first and last frames included): the prior of live frame ``t`` and action ``j`` is the planned action at
+the mapped frame of ``t + j``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..data.replay_plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
+from .generation import PlannedTask
+from .replay import DemoPlan
+
+
+def aligned_frames(live: DemoPlan, planned: DemoPlan, frames: np.ndarray) -> np.ndarray:
+    """The frames of ``planned`` that correspond to ``frames`` (any shape, int) of ``live``: piecewise linear between
+    the frames where both reach the same waypoint, rounded; proportional to the episode lengths where the two
+    demonstrations do not pass the same number of waypoints."""
+    live_last, planned_last = live.num_frames - 1, planned.num_frames - 1
+    if len(live.waypoint_frames) == len(planned.waypoint_frames):
+        live_knots = np.concatenate([[0], live.waypoint_frames, [live_last]]).astype(float)
+        planned_knots = np.concatenate([[0], planned.waypoint_frames, [planned_last]]).astype(float)
+        # Waypoints reached on the same frame (a zero-length segment) would make np.interp's knots non-increasing.
+        live_knots = np.maximum.accumulate(live_knots)
+        mapped = np.interp(np.minimum(frames, live_last), live_knots, planned_knots)
+    else:
+        mapped = np.minimum(frames, live_last) * (planned_last / max(live_last, 1))
+    return np.clip(np.rint(mapped), 0, planned_last).astype(np.int64)
+
+
+def replay_prior_actions(
+    planned: PlannedTask,
+    context_first_cloud: np.ndarray,
+    live_first_cloud: np.ndarray,
+    live_frames: np.ndarray,
+    horizon: int,
+    per_object: bool,
+) -> np.ndarray:
+    """The replay prior of live frames ``live_frames (S,)``: ``(S, T, 8)`` absolute world-frame EE targets and gripper
+    commands (the contract's layout), ``T = horizon``.
+
+    ``planned.demos`` holds the context demonstrations then the live one; ``context_first_cloud (P, 3)`` is the first
+    context demonstration's first cloud and ``live_first_cloud (P, 3)`` the live one's, world frame, as rendered for
+    training. ``per_object``: plan per object where the demonstration allows it (module docstring).
+    """
+    first, live = planned.demos[0], planned.demos[-1]
+    source = ReplaySource(np.asarray(context_first_cloud), first.action)
+    plan = plan_replay(f"pseudo-task {planned.task_index}", [source], live_first_cloud, REPLAY_REGISTRATION, per_object)
+    steps = np.asarray(live_frames)[:, None] + np.arange(horizon)
+    return plan.actions[aligned_frames(live, first, steps)].astype(np.float32)
+
+
+__all__ = ["aligned_frames", "replay_prior_actions"]

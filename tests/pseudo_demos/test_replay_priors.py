@@ -1,0 +1,94 @@
+"""Replay priors of pseudo-tasks (``pseudo_demos.replay_priors``): the plan inference makes, re-timed to the live
+demonstration; a live demonstration that is one of its context's gets its own actions back; the stream and the pool
+carry the priors only when asked."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.contract import REPLAY_PRIOR_KEY, poses_from_vectors
+from lerobot_instant_policy.data.replay_plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
+from lerobot_instant_policy.model.geometry_encoder import encoder_preset
+from lerobot_instant_policy.policy.task_pool import EncoderSource, encode_task
+from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
+from lerobot_instant_policy.pseudo_demos.replay_priors import aligned_frames, replay_prior_actions
+from lerobot_instant_policy.pseudo_demos.stream import PseudoTaskStream, StreamConfig
+
+WEIGHTS = InstantPolicyConfig(device="cpu").encoder_weights_path()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread(single_torch_thread):
+    yield
+
+
+def stream_config(**overrides) -> StreamConfig:
+    values = dict(generation=GenerationConfig(seed=11), num_demos=2, num_waypoints=10, horizon=8, samples_per_task=3,
+                  tasks_per_render=2, surface_samples=1024, zbuffer_resolution=(160, 120), replay_priors=True)
+    return StreamConfig(**(values | overrides))
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    """Two-object pick-and-place tasks of the full family, with priors."""
+    return PseudoTaskStream(stream_config()).render_tasks([3, 4])
+
+
+def test_frames_map_waypoint_to_waypoint_and_stay_in_order(rendered):
+    demos = rendered[0].frames.planned.demos
+    live, planned = demos[-1], demos[0]
+    assert len(live.waypoint_frames) == len(planned.waypoint_frames)
+    assert np.array_equal(aligned_frames(live, planned, np.asarray(live.waypoint_frames)), planned.waypoint_frames)
+    mapped = aligned_frames(live, planned, np.arange(live.num_frames + 5))
+    assert mapped[0] == 0 and mapped[-1] == planned.num_frames - 1 and np.all(np.diff(mapped) >= 0)
+    # without a waypoint correspondence: proportional to the episodes' lengths
+    stripped = dataclasses.replace(planned, waypoint_frames=planned.waypoint_frames[:-1])
+    proportional = aligned_frames(live, stripped, np.array([0, live.num_frames - 1]))
+    assert proportional.tolist() == [0, planned.num_frames - 1]
+
+
+def test_the_prior_is_the_inference_plan_re_timed_to_the_live_demonstration(rendered):
+    task = rendered[0]
+    live = task.frames.planned.demos[-1]
+    assert task.replay_prior.shape == (3, 8, 8) and task.replay_prior.dtype == np.float32
+    assert task.live_clouds.shape[0] == 3  # the live first cloud rendered for the plan is not a live frame
+    # the plan of the first context demonstration (in every training context), as the policy's inference makes it
+    first = task.frames.planned.demos[0]
+    sources = [ReplaySource(task.context_clouds[0, 0].numpy(), first.action)]
+    live_cloud = PseudoTaskStream(stream_config())._render([task.frames])[0][-1].numpy()  # the task's clouds again
+    plan = plan_replay("t", sources, live_cloud, REPLAY_REGISTRATION, per_object=True)
+    steps = task.frames.live[:, None] + np.arange(8)
+    expected = plan.actions[aligned_frames(live, first, steps)]
+    np.testing.assert_allclose(task.replay_prior, expected, atol=1e-6)
+    poses_from_vectors(task.replay_prior.reshape(-1, 8))  # valid poses
+
+
+@pytest.mark.parametrize("per_object", [True, False])
+def test_a_live_demonstration_from_the_context_gets_its_own_actions_back(rendered, per_object):
+    """Registration of a cloud onto itself is the identity and the re-timing of a demonstration onto itself too, so
+    the prior of a live demonstration that is context demonstration 0 is its own actions."""
+    task = rendered[1]
+    context = task.frames.planned.demos[:-1]
+    planned = dataclasses.replace(task.frames.planned, demos=[*context, context[0]])
+    first_cloud = task.context_clouds[0, 0].numpy()
+    frames = np.array([0, context[0].num_frames // 2, context[0].num_frames - 3])
+    prior = replay_prior_actions(planned, first_cloud, first_cloud, frames, 8, per_object)
+    steps = np.minimum(frames[:, None] + np.arange(8), context[0].num_frames - 1)
+    np.testing.assert_allclose(prior[..., :3], context[0].action[steps][..., :3], atol=2e-3)
+    np.testing.assert_array_equal(prior[..., 7], context[0].action[steps][..., 7])
+
+
+def test_the_pool_carries_priors_only_when_the_stream_plans_them(rendered):
+    source = EncoderSource(encoder_preset("small"), weights=str(WEIGHTS)).build()
+    with_priors = encode_task(rendered[0], source, 8)
+    np.testing.assert_array_equal(with_priors.sample(2)[REPLAY_PRIOR_KEY].numpy(), rendered[0].replay_prior[2])
+    stream = PseudoTaskStream(stream_config(replay_priors=False))
+    plain = stream.render_tasks([3])[0]
+    assert plain.replay_prior is None and REPLAY_PRIOR_KEY not in encode_task(plain, source, 8).sample(0)
+    assert REPLAY_PRIOR_KEY not in stream._task_samples(plain)[0]
+    # the same task's live frames and clouds either way: the prior's extra cloud is not among them
+    np.testing.assert_array_equal(plain.clouds.numpy(), rendered[0].clouds.numpy())
