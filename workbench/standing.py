@@ -83,7 +83,7 @@ class StandingConfig:
     (``--start``, before any standing save exists) had already seen. ``base_lr`` / ``weight_decay``: a study arm's
     recipe, written into the resumed optimizer and scheduler (None: as the save holds them; the schedule's shape and
     step go on unchanged, only its peak rate changes). ``average_decay``: keep a moving average of the weights
-    (``lerobot-ip-train --average.decay``), validated beside the raw weights. ``device``: where the update runs;
+    (``lerobot-ip-train --average.decay``; None: none), validated beside the raw weights. ``device``: where the update runs;
     ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its CPU
     cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags.
     ``replay_init_strength`` / ``replay_per_object``: validate every checkpoint started from the replay of its
@@ -118,7 +118,7 @@ class StandingConfig:
     prior_tasks: int = 0
     base_lr: float | None = None
     weight_decay: float | None = None
-    average_decay: float | None = None
+    average_decay: float | None = 0.99975
     lerobot_args: list[str] = field(default_factory=list)
     replay_init_strength: float | None = None
     replay_per_object: bool | None = None
