@@ -5,7 +5,8 @@ One flag picks the model: ``--policy.preset=small`` (the model that ships, train
 re-encoded action clouds, 10 encoding frequencies, up to 5 demonstrations per training context) or
 ``--policy.preset=refined`` (the small model trained to refine the per-object replay of its demonstrations, and run
 from it: half of the training rows start from the noised replay prior, inference from the replay noised to a quarter
-of the DDIM steps). A field left at ``None`` takes the preset's value; a value given explicitly wins over the preset. After ``__post_init__`` every field
+of the DDIM steps). A field left at ``None`` takes the preset's value; a value given explicitly wins over the
+preset. After ``__post_init__`` every field
 is set, so a saved ``config.json`` is complete on its own.
 
 This one dataclass configures everything: LeRobot's training loop, the policy, and, handed over as it is, the network

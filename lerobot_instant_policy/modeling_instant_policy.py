@@ -220,20 +220,20 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 f"{REPLAY_PRIOR_KEY!r}: train on the pseudo-task stream or pool (lerobot-ip-train), which plans them "
                 "when refine_fraction > 0, or set --policy.refine_fraction=0"
             )
-        planned = batch[REPLAY_PRIOR_KEY]
-        expected = (len(T_world_ee), self.config.horizon, 8)
-        if tuple(planned.shape) != expected:
-            raise ValueError(f"{REPLAY_PRIOR_KEY!r} must have shape (B, horizon, 8) = {expected}, got "
-                             f"{tuple(planned.shape)}")
-        if not torch.isfinite(planned).all():
-            raise ValueError(f"{REPLAY_PRIOR_KEY!r} contains NaN or infinite values")
-        prior = self._in_ee_frame(planned.to(device=T_world_ee.device, dtype=T_world_ee.dtype), T_world_ee)
+        prior = self._in_ee_frame(REPLAY_PRIOR_KEY, batch[REPLAY_PRIOR_KEY], T_world_ee)
         refined_rows = torch.rand(len(T_world_ee), device=T_world_ee.device) < self.config.refine_fraction
         return prior, refined_rows
 
-    def _in_ee_frame(self, planned: Tensor, T_world_ee: Tensor) -> Tensor:
-        """Planned world-frame actions ``(B, T, 8)`` as the diffusion variable ``(B, T, 7)`` of actions relative to the
-        current EE poses ``T_world_ee (B, 4, 4)``."""
+    def _in_ee_frame(self, name: str, planned: Tensor, T_world_ee: Tensor) -> Tensor:
+        """Planned world-frame actions ``planned (B, T, 8)`` (``name`` in errors) as the diffusion variable
+        ``(B, T, 7)`` of actions relative to the current EE poses ``T_world_ee (B, 4, 4)``; ``ValueError`` for another
+        shape or a non-finite value."""
+        expected = (len(T_world_ee), self.config.horizon, 8)
+        if tuple(planned.shape) != expected:
+            raise ValueError(f"{name!r} must have shape (B, horizon, 8) = {expected}, got {tuple(planned.shape)}")
+        if not torch.isfinite(planned).all():
+            raise ValueError(f"{name!r} contains NaN or infinite values")
+        planned = planned.to(device=T_world_ee.device, dtype=T_world_ee.dtype)
         T_world_planned, planned_gripper = poses_from_vectors_torch(planned)
         T_ee_planned = compose(invert_rigid(T_world_ee)[:, None], T_world_planned)
         return self.network.diffusion.normalize(T_ee_planned, planned_gripper.clamp(0.0, 1.0))
@@ -341,13 +341,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
         guess = None
         if initial_actions is not None:
-            expected = (len(state), self.config.horizon, 8)
             if not self.config.replay_init_strength:
                 raise ValueError("initial_actions are a denoising start: set replay_init_strength to use them")
-            if tuple(initial_actions.shape) != expected or not torch.isfinite(initial_actions).all():
-                raise ValueError(f"initial_actions must be finite, of shape (B, horizon, 8) = {expected}, got "
-                                 f"{tuple(initial_actions.shape)}")
-            guess = self._in_ee_frame(initial_actions.to(device=state.device, dtype=state.dtype), T_world_ee)
+            guess = self._in_ee_frame("initial_actions", initial_actions, T_world_ee)
         elif self.config.replay_init_strength:
             guess = self.replay_guess(points_world, T_world_ee, tasks)
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
@@ -412,8 +408,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 for task, cloud in zip(tasks, clouds, strict=True)
             ]
         planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])
-        return self._in_ee_frame(torch.from_numpy(planned).to(device=T_world_ee.device, dtype=T_world_ee.dtype),
-                                 T_world_ee)
+        return self._in_ee_frame("the replay plan", torch.from_numpy(planned), T_world_ee)
 
     # ------------------------------------------------------------------ checkpoints
     @classmethod

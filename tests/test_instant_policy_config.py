@@ -80,7 +80,8 @@ def test_the_refined_preset_is_the_small_model_trained_and_run_from_the_replay()
     refined, small = config(preset="refined"), config()
     assert (refined.refine_fraction, refined.replay_init_strength, refined.replay_per_object) == (0.5, 0.25, True)
     assert (small.refine_fraction, small.replay_init_strength, small.replay_per_object) == (0.0, None, False)
-    sizes = ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers", "encoder_preset", "max_demos")
+    sizes = ("hidden_dim", "num_heads", "local_layers", "context_layers", "action_layers", "encoder_preset",
+             "max_demos")
     assert [getattr(refined, name) for name in sizes] == [getattr(small, name) for name in sizes]
     assert config(preset="refined", refine_fraction=0.2, replay_init_strength=0.5).refine_fraction == 0.2
 

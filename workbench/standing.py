@@ -83,9 +83,9 @@ class StandingConfig:
     (``--start``, before any standing save exists) had already seen. ``base_lr`` / ``weight_decay``: a study arm's
     recipe, written into the resumed optimizer and scheduler (None: as the save holds them; the schedule's shape and
     step go on unchanged, only its peak rate changes). ``average_decay``: keep a moving average of the weights
-    (``lerobot-ip-train --average.decay``; None: none), validated beside the raw weights. ``device``: where the update runs;
-    ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its CPU
-    cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags.
+    (``lerobot-ip-train --average.decay``; None: none), validated beside the raw weights. ``device``: where the update
+    runs; ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its
+    CPU cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags.
     ``replay_init_strength`` / ``replay_per_object``: validate every checkpoint started from the replay of its
     demonstrations (``lerobot-ip-action-error --replay-init-strength``; None: as the checkpoint's config says)."""
 

@@ -271,7 +271,8 @@ def _add_stream(commands) -> None:
                         help="a lerobot-ip-generate JSON config: the distributions the tasks are drawn from")
     priors.add_argument("--tasks", type=int, default=24, help="tasks per variant")
     priors.add_argument("--samples-per-task", type=int, default=8, help="live frames rendered and encoded per task")
-    priors.add_argument("--tasks-per-render", type=int, default=1, help="tasks rendered in one call (one block; the standing run's 1)")
+    priors.add_argument("--tasks-per-render", type=int, default=1,
+                        help="tasks rendered in one call (one block; default: the standing run's 1)")
     priors.add_argument("--surface-samples", type=int, default=4096,
                         help="surface samples per object that splatting draws from (default: the standing run's 4096)")
     priors.add_argument("--threads", type=int, default=1, help="torch threads (a pool generator's default: 1)")
@@ -317,7 +318,8 @@ def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> di
 
 def _run_priors(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
     if min(args.tasks, args.samples_per_task, args.tasks_per_render, args.surface_samples, args.threads) <= 0:
-        parser.error("--tasks, --samples-per-task, --tasks-per-render, --surface-samples and --threads must be positive")
+        parser.error("--tasks, --samples-per-task, --tasks-per-render, --surface-samples and --threads must be "
+                     "positive")
     import torch
 
     from ..benchmarks.stream import replay_prior_benchmark

@@ -321,12 +321,12 @@ def task_table(tasks: list[HeldOutTask], own: dict, hold: dict, swap: dict) -> l
                                                       swap["translation_mm_by_task"], strict=True)]
 
 
-def _task_sums(per_task: list[dict]) -> dict[str, np.ndarray]:
-    """``own``, ``hold`` and ``swap``: each task's translation error summed over its frames (mean × frames),
-    ``(tasks,)``, from a :func:`task_table`."""
+def _task_sums(per_task: list[dict], names: tuple[str, ...] = ("own", "hold", "swap")) -> dict[str, np.ndarray]:
+    """Each of ``names`` (the table's ``<name>_mm`` columns; default ``own``, ``hold`` and ``swap``): each task's
+    translation error summed over its frames (mean × frames), ``(tasks,)``, from a :func:`task_table`."""
     frames = np.array([row["frames"] for row in per_task], dtype=float)
     return {name: frames * np.array([row[f"{name}_mm"] for row in per_task], dtype=float)
-            for name in ("own", "hold", "swap")}
+            for name in names}
 
 
 def _ratios(sums: dict[str, np.ndarray], draws: np.ndarray) -> np.ndarray:
@@ -510,9 +510,7 @@ def replay_intervals(per_task: list[dict], resamples: int = BOOTSTRAP_RESAMPLES,
     """The ratios ``vs_replay`` (own / replay) and ``replay_vs_holding_still`` (replay / hold) of the mean translation
     errors of a :func:`task_table` with ``replay_mm``, each ``{"value", "ci95"}`` (tasks resampled as in
     :func:`task_intervals`)."""
-    frames = np.array([row["frames"] for row in per_task], dtype=float)
-    sums = {name: frames * np.array([row[f"{name}_mm"] for row in per_task], dtype=float)
-            for name in ("own", "hold", "replay")}
+    sums = _task_sums(per_task, ("own", "hold", "replay"))
     every = np.arange(len(per_task))
     result = {}
     for name, (numerator, denominator) in {"vs_replay": ("own", "replay"),

@@ -190,7 +190,7 @@ def _initial_guesses(source: np.ndarray, target: np.ndarray, yaw_only: bool, yaw
         base = _planar_principal_angle(target) - _planar_principal_angle(source)
         yaws = [base + quarter * np.pi / 2 for quarter in range(4)]
         yaws += list(np.linspace(-np.pi, np.pi, yaw_samples, endpoint=False))
-        rotations = [_yaw_matrix(yaw) for yaw in yaws]
+        rotations = list(_yaw_matrices(np.array(yaws)))
     else:
         source_axes, target_axes = _principal_axes(source), _principal_axes(target)
         rotations = [target_axes @ permutation @ source_axes.T for permutation in _AXIS_PERMUTATIONS]
@@ -241,10 +241,13 @@ def _nearest(poses: np.ndarray, source: np.ndarray, tree: cKDTree) -> tuple[np.n
     return distances.reshape(len(poses), -1), indices.reshape(len(poses), -1)
 
 
-def _yaw_matrix(yaw: float) -> np.ndarray:
-    """The rotation by ``yaw`` (rad) about z, ``(3, 3)``."""
-    cos, sin = np.cos(yaw), np.sin(yaw)
-    return np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
+def _yaw_matrices(yaws: np.ndarray) -> np.ndarray:
+    """The rotations by ``yaws (R,)`` (rad) about z, ``(R, 3, 3)``."""
+    cos, sin = np.cos(yaws), np.sin(yaws)
+    rotations = np.zeros((len(yaws), 3, 3))
+    rotations[:, 0, 0], rotations[:, 0, 1], rotations[:, 1, 0], rotations[:, 1, 1] = cos, -sin, sin, cos
+    rotations[:, 2, 2] = 1.0
+    return rotations
 
 
 def _best_rigid_transforms(source: np.ndarray, target: np.ndarray, yaw_only: bool) -> np.ndarray:
@@ -253,16 +256,9 @@ def _best_rigid_transforms(source: np.ndarray, target: np.ndarray, yaw_only: boo
     source_centroid, target_centroid = source.mean(axis=1), target.mean(axis=1)
     source_centred, target_centred = source - source_centroid[:, None], target - target_centroid[:, None]
     if yaw_only:
-        cross = np.sum(source_centred[..., 0] * target_centred[..., 1] - source_centred[..., 1] * target_centred[..., 0],
-                       axis=1)
-        dot = np.sum(source_centred[..., 0] * target_centred[..., 0] + source_centred[..., 1] * target_centred[..., 1],
-                     axis=1)
-        norm = np.hypot(cross, dot)
-        cos = np.where(norm > 0.0, dot / np.where(norm > 0.0, norm, 1.0), 1.0)
-        sin = np.where(norm > 0.0, cross / np.where(norm > 0.0, norm, 1.0), 0.0)
-        rotations = np.zeros((len(source), 3, 3))
-        rotations[:, 0, 0], rotations[:, 0, 1], rotations[:, 1, 0], rotations[:, 1, 1] = cos, -sin, sin, cos
-        rotations[:, 2, 2] = 1.0
+        sx, sy, tx, ty = source_centred[..., 0], source_centred[..., 1], target_centred[..., 0], target_centred[..., 1]
+        cross, dot = np.sum(sx * ty - sy * tx, axis=1), np.sum(sx * tx + sy * ty, axis=1)
+        rotations = _yaw_matrices(np.arctan2(cross, dot))
     else:
         rotations = np.stack([Rotation.align_vectors(target_row, source_row)[0].as_matrix()
                               for target_row, source_row in zip(target_centred, source_centred, strict=True)])

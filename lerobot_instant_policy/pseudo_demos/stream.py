@@ -32,8 +32,8 @@ A sample (a dict of tensors on ``device``, float32 unless noted), for a live fra
 - ``observation.context.pointcloud (N, L, P, 3)``, ``observation.context.T_world_ee (N, L, 4, 4)``,
   ``observation.context.gripper_open (N, L)``: the context demonstrations' waypoints, world frame;
 - ``observation.context.id`` (int64 scalar): the task index; rows with one id share their context;
-- with ``StreamConfig.replay_priors``, ``observation.replay_prior (T, 8)``: the replay prior of actions ``t … t + T − 1``
-  (:mod:`.replay_priors`), world frame.
+- with ``StreamConfig.replay_priors``, ``observation.replay_prior (T, 8)``: the replay prior of actions
+  ``t … t + T − 1`` (:mod:`.replay_priors`), world frame.
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ def suite_tasks(paraphrases: Paraphrases, suite: str) -> list[str]:
 
 def test_every_suite_task_has_four_seen_and_two_held_out_sentences(paraphrases):
     # the suite's own tasks: a test elsewhere may have registered one of its own in this process
-    builtin = [name for name in task_names() if get_task(name).__module__.startswith("lerobot_instant_policy.sim.tasks")]
+    builtin = [name for name in task_names()
+               if get_task(name).__module__.startswith("lerobot_instant_policy.sim.tasks")]
     assert len(builtin) == 12 and sorted(suite_tasks(paraphrases, "bullet_tabletop")) == builtin
     assert sorted(suite_tasks(paraphrases, "metaworld")) == sorted(lerobot_metaworld_tasks()[0])  # MT50
     for task in paraphrases.tasks:
