@@ -28,6 +28,7 @@ from lerobot.optim import DiffuserSchedulerConfig
 
 from .contract import POINTCLOUD_KEY
 from .geometry.gripper import GRIPPER_KEYPOINTS
+from .language.paraphrases import paraphrase_choice
 from .model.bounds import (
     MAX_SAMPLES_PER_PREDICTION,
     SUPPORTED_DEMOS,
@@ -53,6 +54,9 @@ SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "checkpoints" / "instant_policy"  # the pretrained_model these defaults describe
 
 DEFAULT_GRIPPER_KEYPOINTS = GRIPPER_KEYPOINTS
+
+# where a task's context comes from at evaluation: its demonstrations, or its task string through the language head
+CONTEXTS = ("demonstrations", "language")
 
 # torch.compile's modes ("reduce-overhead" records CUDA graphs on a GPU).
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
@@ -172,6 +176,16 @@ class InstantPolicyConfig(PreTrainedConfig):
             offline from ``demo_root``; default ``None``: none, demonstrations are handed in with
             ``set_demonstrations``). A batch without ``task`` uses its task when it holds one.
         demo_root: its local directory (default ``None``: LeRobot's cache, ``$HF_LEROBOT_HOME/<demo_repo_id>``).
+        context: where a task's context comes from at evaluation, one of :data:`CONTEXTS` (default
+            ``"demonstrations"``: its demonstrations). ``"language"``: the task said in words, the batch's ``task``
+            string through a language head (:mod:`.language.task_language`, docs/language.md), for every task whose
+            demonstrations were not handed in with ``set_demonstrations``; no ``demo_repo_id``, no replay start.
+        language_head_path: the language head's directory (``lerobot-ip-train-language``'s ``OUT/head``), made for
+            this checkpoint's weights (default ``None``: the head shipped for the shipped checkpoint,
+            ``lerobot_instant_policy/assets/language/head``).
+        language_paraphrase: with ``context="language"``, the sentence that says a task string of the paraphrase
+            file (``push_button``, ``reach-v3``): ``SPLIT:K``, the K-th of its ``seen`` or ``held_out`` sentences
+            (default ``"seen:0"``); any other task string is read as the sentence itself.
         n_action_steps: actions of each prediction run before predicting again, 1…``horizon`` (default 8).
         replan_on_gripper_change: drop the queued actions after one that changes the gripper command, so the policy
             looks again once the gripper has acted (default ``True``).
@@ -243,6 +257,9 @@ class InstantPolicyConfig(PreTrainedConfig):
 
     demo_repo_id: str | None = None
     demo_root: str | None = None
+    context: str = "demonstrations"
+    language_head_path: str | None = None
+    language_paraphrase: str = "seen:0"
 
     n_action_steps: int = 8
     replan_on_gripper_change: bool = True
@@ -325,6 +342,7 @@ class InstantPolicyConfig(PreTrainedConfig):
                 f"max_translation and max_rotation_deg must be positive, got {self.max_translation}, "
                 f"{self.max_rotation_deg}"
             )
+        self._validate_context()
         if self.compile_mode not in COMPILE_MODES:
             raise ValueError(f"compile_mode must be one of {list(COMPILE_MODES)}, got {self.compile_mode!r}")
         if self.gripper_loss_weight < 0:
@@ -337,6 +355,22 @@ class InstantPolicyConfig(PreTrainedConfig):
                 f"non-negative, got {self.optimizer_lr}, {self.optimizer_grad_clip_norm}, {self.scheduler_warmup_steps}"
             )
         self._validate_encoder()
+
+    def _validate_context(self) -> None:
+        if self.context not in CONTEXTS:
+            raise ValueError(f"context must be one of {list(CONTEXTS)}, got {self.context!r}")
+        try:
+            paraphrase_choice(self.language_paraphrase)
+        except ValueError as error:
+            raise ValueError(f"language_paraphrase: {error}") from error
+        if self.context != "language":
+            return
+        if self.demo_repo_id is not None:
+            raise ValueError(f"context='language' says each task in words, without demonstrations, but demo_repo_id is "
+                             f"{self.demo_repo_id!r}: drop demo_repo_id, or use context='demonstrations'")
+        if self.replay_init_strength:
+            raise ValueError("context='language' has no demonstrations to replay: set replay_init_strength to None "
+                             "(the refined preset sets 0.25), or use context='demonstrations'")
 
     def _validate_encoder(self) -> None:
         if self.encoder_config.num_nodes != self.num_scene_nodes:

@@ -13,7 +13,8 @@ this is part of ``model.safetensors``.
 Evaluation (``lerobot-eval``) and deployment: the demonstrations of each batch row's ``task`` come from the
 dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :meth:`set_demonstrations`. They take
 the training context's path (a bank of their waypoints → :class:`ContextEncoder` → :class:`DemoTensors`) once per
-task, and the result is reused at every control step.
+task, and the result is reused at every control step. With ``context="language"`` a task whose demonstrations were
+not handed in is said in words instead: its ``task`` string through the language head (:mod:`.language.task_language`).
 
 Actions: the network predicts ``T_EA``, the action poses in the current EE frame; the policy returns them as
 absolute world-frame EE targets ``(B, T, 8)`` in the layout of docs/design.md §4 (xyz, quaternion xyzw with ``w ≥ 0``,
@@ -52,11 +53,12 @@ from .contract import (
 )
 from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
-from .data.demonstrations import Demonstration, DemonstrationSource, open_demo_dataset
+from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
 from .data.replay_plan import REPLAY_REGISTRATION, ReplayPlan, plan_replay
 from .geometry.rigid_torch import compose, invert_rigid
+from .language.task_language import TaskLanguage
 from .model.bounds import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, check_range
-from .model.instant_policy_network import DemoTensors, InstantPolicyNetwork
+from .model.instant_policy_network import DemoTensors, InstantPolicyContext, InstantPolicyNetwork
 from .model.occupancy import load_encoder_weights
 from .policy.context_encoder import ContextEncoder
 from .policy.frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
@@ -118,6 +120,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._demonstrations = DemonstrationSource(
             "instant_policy", config.demo_repo_id, config.demo_root, config.num_demos
         )
+        self._language = (TaskLanguage(config.language_head_path, config.language_paraphrase)
+                          if config.context == "language" else None)
 
     def load_encoder_weights(self, path: str | Path) -> None:
         """Load the frozen geometry encoder's weights from a ``lerobot-ip-pretrain-encoder`` file: a
@@ -327,8 +331,9 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                              **kwargs) -> Tensor:
         """``(B, T, 8)`` absolute world-frame EE targets (xyz, quaternion xyzw with ``w ≥ 0``, gripper 1/0).
 
-        Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), with
-        ``num_inference_steps`` DDIM steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
+        Each row uses the demonstrations of its ``batch["task"]`` (rows of one task are denoised together), or with
+        ``config.context="language"`` the task said in words (:meth:`rows_context`), with ``num_inference_steps`` DDIM
+        steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
         With ``config.replay_init_strength`` the denoising starts from ``initial_actions (B, T, 8)`` (absolute
         world-frame actions in the same layout, a plan made elsewhere), or without them from the episode's replay
         plan at the current step (:meth:`replay_guess`); with ``config.samples_per_prediction`` > 1 each row is the
@@ -349,16 +354,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
         for task in dict.fromkeys(tasks):
             rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
-            task_context = self.task_context(task)
-            count = len(rows)
-            waypoint_features = task_context.waypoint_features
-            context = self.network.encode_context(
-                task_context.demos.expand(count),
-                points_world[rows],
-                T_world_ee[rows],
-                gripper[rows],
-                demo_waypoint_features=waypoint_features.expand(count, *waypoint_features.shape[1:]),
-            )
+            context = self.rows_context(task, points_world[rows], T_world_ee[rows], gripper[rows])
             T_ee_actions, action_gripper = self.network.sample_actions(
                 context, num_inference_steps=steps, generator=generator,
                 initial=None if guess is None else guess[rows], strength=self.config.replay_init_strength or 1.0,
@@ -366,6 +362,21 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             )
             chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
         return chunk
+
+    def rows_context(self, task: str, points_world: Tensor, T_world_ee: Tensor,
+                     gripper: Tensor) -> InstantPolicyContext:
+        """The context of ``B`` rows of ``task`` at a control step, from their clouds ``points_world (B, P, 3)``, EE
+        poses ``T_world_ee (B, 4, 4)`` and gripper states ``gripper (B,)`` (1 open): with ``config.context="language"``
+        and no demonstrations of ``task`` handed in, the task said in words through the language head
+        (:class:`~.language.task_language.TaskLanguage`); else its demonstrations (:meth:`task_context`)."""
+        if self._language is not None and task not in self._demonstrations.tasks:
+            return self._language.context(self.network, task, points_world, T_world_ee, gripper)
+        task_context = self.task_context(task)
+        count, waypoint_features = len(points_world), task_context.waypoint_features
+        return self.network.encode_context(
+            task_context.demos.expand(count), points_world, T_world_ee, gripper,
+            demo_waypoint_features=waypoint_features.expand(count, *waypoint_features.shape[1:]),
+        )
 
     @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
@@ -590,7 +601,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
         """Each row's task: ``batch["task"]``, or without it the one task of the demonstrations (handed in, or the
         demonstration dataset's); a ``KeyError`` that says what to pass where there are several."""
-        return self._demonstrations.batch_tasks(batch.get("task"), batch_size)
+        if self._language is None:
+            return self._demonstrations.batch_tasks(batch.get("task"), batch_size)
+        return batch_task_names(batch.get("task"), batch_size, "instant_policy with context='language'",
+                                self._demonstrations.default_task, "; it says each row's task in words")
 
 
 def _first_rows(ids: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -44,7 +44,7 @@ import torch
 
 from .contract import ACTION_KEY, POINTCLOUD_KEY, POINTCLOUD_NAMES, POSE_GRIPPER_NAMES, STATE_KEY
 from .policy.task_pool import EncoderSource, PoolConfig, TaskPool
-from .policy.weight_average import WeightAverage
+from .policy.weight_average import WeightAverage, saved_decay
 from .pseudo_demos.stream import PseudoTaskStream, StreamConfig
 
 STREAM_REPO_ID = "local/pseudo_task_stream"
@@ -233,7 +233,7 @@ def train(stream_config: StreamConfig, lerobot_argv: list[str], pool_config: Poo
 
     def save_checkpoint_and_pool(checkpoint_dir, *args, **kwargs):
         save_checkpoint(checkpoint_dir, *args, **kwargs)
-        if averages:
+        if averages and averages[0] is not None:
             averages[0].save(Path(checkpoint_dir) / "training_state")
         if made and isinstance(made[0].stream, TaskPool):
             write_pool_state(checkpoint_dir, made[0].stream)
@@ -243,14 +243,15 @@ def train(stream_config: StreamConfig, lerobot_argv: list[str], pool_config: Poo
         model = accelerator.unwrap_model(policy)
         if not averages:  # at the first step, from the weights the run started or resumed with
             start = resumed_from[0] / "training_state" if resumed_from and resumed_from[0] is not None else None
-            averages.append(WeightAverage.resume(model, average_decay, start))
-        averages[0].update(model)
+            decay = average_decay if average_decay is not None else saved_decay(start)
+            averages.append(None if decay is None else WeightAverage.resume(model, decay, start))
+        if averages[0] is not None:
+            averages[0].update(model)
         return result
 
     lerobot_train.make_train_eval_datasets = make_datasets
     lerobot_train.save_checkpoint = save_checkpoint_and_pool
-    if average_decay is not None:
-        lerobot_train.update_policy = update_and_average
+    lerobot_train.update_policy = update_and_average
     accelerate.Accelerator = stream_accelerator_class()
     sys.argv = ["lerobot-train", f"--dataset.repo_id={STREAM_REPO_ID}", "--dataset.streaming=true", *lerobot_argv]
     try:

@@ -24,6 +24,10 @@ from lerobot_instant_policy.model.occupancy import OccupancyNetwork, save_occupa
 from lerobot_instant_policy.policy.config_migration import RETIRED_OPTIONS
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 
+# options added after the shipped config.json was written: how an evaluation gets its context, not the model; the
+# checkpoint loads them at these defaults
+ADDED_SINCE_SHIPPED = {"context": "demonstrations", "language_head_path": None, "language_paraphrase": "seen:0"}
+
 
 def config(**overrides) -> InstantPolicyConfig:
     return InstantPolicyConfig(device="cpu", **overrides)
@@ -52,15 +56,17 @@ def test_defaults_are_the_shipped_model_so_no_flag_trains_it():
     """``lerobot-train --policy.type=instant_policy`` with no policy flag trains the shipped checkpoint's model and
     recipe: its config.json holds every field of the config and nothing else, each with the default's value, but
     ``type`` (which LeRobot writes beside the fields), ``pretrained_path`` (which LeRobot sets when it loads one) and
-    the removed options as ``null`` (which loading drops)."""
+    the removed options as ``null`` (which loading drops); it lacks the options added since
+    (:data:`ADDED_SINCE_SHIPPED`), which load at their defaults."""
     from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
     defaults = json.loads(json.dumps(draccus.encode(config())))
-    assert set(shipped) - {"type"} - set(RETIRED_OPTIONS) == set(defaults)
+    assert set(shipped) - {"type"} - set(RETIRED_OPTIONS) == set(defaults) - set(ADDED_SINCE_SHIPPED)
+    assert {name: defaults[name] for name in ADDED_SINCE_SHIPPED} == ADDED_SINCE_SHIPPED
     assert shipped["type"] == "instant_policy"
     differing = {key: (shipped[key], value) for key, value in defaults.items()
-                 if key != "pretrained_path" and shipped[key] != value}
+                 if key not in {"pretrained_path", *ADDED_SINCE_SHIPPED} and shipped[key] != value}
     assert differing == {}
     assert defaults["use_amp"] is False  # not the checkpoint's: bfloat16 autocast is the machine's choice
 
@@ -100,8 +106,9 @@ def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
     assert all(name in shipped and shipped[name] is None for name in RETIRED_OPTIONS)  # the old file, unchanged
     loaded = PreTrainedConfig.from_pretrained(SHIPPED_CHECKPOINT)
     assert isinstance(loaded, InstantPolicyConfig) and loaded == InstantPolicyConfig.from_pretrained(SHIPPED_CHECKPOINT)
-    assert {key: value for key, value in shipped.items() if key not in RETIRED_OPTIONS and key != "type"} == json.loads(
-        json.dumps(draccus.encode(loaded)))
+    assert {key: value for key, value in shipped.items() if key not in RETIRED_OPTIONS and key != "type"} == {
+        key: value for key, value in json.loads(json.dumps(draccus.encode(loaded))).items()
+        if key not in ADDED_SINCE_SHIPPED}
     assert "dropped removed options" not in caplog.text  # null: nothing to say
     loaded.save_pretrained(tmp_path / "saved")
     assert not set(RETIRED_OPTIONS) & set(json.loads((tmp_path / "saved" / "config.json").read_text()))

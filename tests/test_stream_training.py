@@ -73,10 +73,11 @@ def test_lerobot_train_trains_on_the_stream_saves_loadable_checkpoints_and_resum
 def test_the_task_pool_trains_records_its_state_in_each_save_and_a_killed_run_resumes_past_its_tasks(tmp_path):
     """``--pool``: every save carries the pool's account; a run killed after its first save resumes from that save,
     its pool starting past every task the save's run had received (nothing seen before is drawn again). With
-    ``--average.decay`` every save also carries the weights' moving average, which the resumed run goes on with."""
+    ``--average.decay`` every save also carries the weights' moving average, which the resumed run goes on with,
+    at the saved decay, without being told again."""
     out = tmp_path / "run"
-    pool_flags = ["--pool", "--pool.min_tasks=1", "--pool.capacity=4", "--average.decay=0.5"]
-    run = _train(tmp_path, *POLICY_FLAGS, *pool_flags, "--steps=4", f"--output_dir={out}")
+    pool_flags = ["--pool", "--pool.min_tasks=1", "--pool.capacity=4"]
+    run = _train(tmp_path, *POLICY_FLAGS, *pool_flags, "--average.decay=0.5", "--steps=4", f"--output_dir={out}")
     assert run.returncode == 0, run.stderr[-3000:]
     assert "training on the pseudo-task pool from task 0 (process 0 of 1)" in run.stdout + run.stderr
     states = {step: json.loads((out / "checkpoints" / f"{step:06d}" / "training_state" / POOL_STATE_FILE).read_text())

@@ -8,6 +8,7 @@ print the success table with cluster (over tasks) and per-episode 95% intervals 
   lerobot-ip-eval-suite --policy demo_replay --split test                   (the held-out seeds: once per candidate)
   lerobot-ip-eval-suite --policy do_nothing --episodes 10 --out outputs/eval_suite   (no demonstrations recorded)
   lerobot-ip-eval-suite --policy demo_replay --obs-type rgbd --env-arg depth_noise_std=0.002 --run-name noisy
+  lerobot-ip-eval-suite --policy demo_replay --demonstrator hand --run-name demo_replay-hand   (hand demonstrations)
 
 ``--obs-type rgbd`` runs the real-robot path: demonstrations are recorded as raw depth + joint states and
 converted with ``lerobot-ip-convert``'s pipeline, and the env hands out depth only (``--env.obs_type=rgbd``), which

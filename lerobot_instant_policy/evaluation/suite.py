@@ -40,6 +40,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..sim.env import SUCCESS_CRITERIA
+from ..sim.hand_demonstrator import DEMONSTRATORS
 from ..sim.recording import record
 from ..sim.task_api import get_task
 from . import metaworld_suite
@@ -49,6 +50,7 @@ from .success_table import collect_results, format_table, task_group, write_tabl
 ENV_TYPE = "bullet_tabletop"
 POLICIES = ("demo_replay", "instant_policy", "do_nothing")  # bullet_tabletop's
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
+LANGUAGE_CONTEXT_ARG = "--policy.context=language"  # instant_policy reads the env's task in words instead
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
 SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demonstration seed, first episode seed)
 # settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
@@ -92,8 +94,9 @@ class SuiteSettings:
     ``env_args``: ``--env.KEY=VALUE`` for the evaluation only (demonstrations are always recorded clean).
 
     ``bullet_tabletop`` only: ``task_module`` (user tasks), ``obs_type`` (``rgbd``: the real-robot path), ``success``
-    (``held`` or ``instant``). ``metaworld_pointcloud`` only: ``episode_length`` and ``pointcloud_every``
-    (``metaworld_suite``)."""
+    (``held`` or ``instant``), ``demonstrator`` (``gripper``: the scripted robot; ``hand``: a simulated person's hand,
+    its recordings converted from landmarks, ``sim.hand_demonstrator``). ``metaworld_pointcloud`` only:
+    ``episode_length`` and ``pointcloud_every`` (``metaworld_suite``)."""
 
     policy: str = "demo_replay"
     policy_path: str | None = None
@@ -116,6 +119,7 @@ class SuiteSettings:
     env_type: str = ENV_TYPE
     episode_length: int = metaworld_suite.DEFAULT_EPISODE_LENGTH
     pointcloud_every: int = metaworld_suite.DEFAULT_POINTCLOUD_EVERY
+    demonstrator: str = "gripper"
 
     @property
     def env(self) -> SuiteEnv:
@@ -140,7 +144,7 @@ class SuiteSettings:
             raise SuiteError("episodes, demo_sets, batch_size and num_demos must be positive")
         if self.policy == "instant_policy" and not self.policy_path:
             raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
-        if self.swap and self.policy not in DEMONSTRATION_POLICIES:
+        if self.swap and not self.reads_demonstrations:
             raise SuiteError(f"the context swap needs a policy that reads demonstrations, not {self.policy!r}")
         check_seeds(self.num_demos, self.demo_seed, self.eval_seed, self.episodes, self.demo_sets)
 
@@ -160,11 +164,18 @@ class SuiteSettings:
     def eval_seed_of(self, demo_set: int) -> int:
         return self.eval_seed + self.episodes * demo_set
 
+    @property
+    def reads_demonstrations(self) -> bool:
+        """Whether the policy reads recorded demonstrations: ``DEMONSTRATION_POLICIES``, but not ``instant_policy``
+        told ``--policy-arg context=language`` (each task said in words)."""
+        return self.policy in DEMONSTRATION_POLICIES and LANGUAGE_CONTEXT_ARG not in self.policy_args
+
     def demos_of(self, task: str, demo_set: int, source: str | None) -> Path | None:
         """The demonstration dataset the policy reads in this cell, ``None`` for a policy that reads none."""
-        if self.policy not in DEMONSTRATION_POLICIES:
+        if not self.reads_demonstrations:
             return None
-        return demo_root(self.out, task, self.num_demos, self.demo_seed_of(demo_set), self.obs_type, source)
+        return demo_root(self.out, task, self.num_demos, self.demo_seed_of(demo_set), self.obs_type, source,
+                         self.demonstrator)
 
 
 def check_seeds(num_demos: int, demo_seed: int, eval_seed: int, episodes: int, demo_sets: int) -> None:
@@ -203,16 +214,27 @@ def swap_sources(tasks: list[str], group_of: Callable[[str], str]) -> dict[str, 
 
 
 def demo_root(out: Path, task: str, num_demos: int, demo_seed: int, obs_type: str = "pointcloud",
-              source: str | None = None) -> Path:
+              source: str | None = None, demonstrator: str = "gripper") -> Path:
     """Where the demonstrations of ``task`` read by the policy live (``source``: recorded on that task instead and
-    labelled ``task``); for ``rgbd`` the converted dataset (the raw recording sits beside it, ``...-rgbd-raw``)."""
+    labelled ``task``); for ``rgbd`` the converted dataset (the raw recording sits beside it, ``...-rgbd-raw``); for
+    the ``hand`` demonstrator the converted dataset of ``...-hand`` (its recordings beside it, ``...-hand-recordings``),
+    whatever the evaluation's ``obs_type``."""
+    if demonstrator == "hand":
+        return out / "demos" / (f"{task}-n{num_demos}-s{demo_seed}-hand" + (f"-from-{source}" if source else ""))
     suffix = ("" if obs_type == "pointcloud" else f"-{obs_type}") + (f"-from-{source}" if source else "")
     return out / "demos" / f"{task}-n{num_demos}-s{demo_seed}{suffix}"
 
 
 def record_demonstrations(settings: SuiteSettings, task: str, demos: Path, seed: int, source: str) -> None:
     """Record ``settings.num_demos`` demonstrations of ``source`` labelled ``task`` into ``demos``; for ``rgbd`` as
-    raw depth, converted (robot removed by its joint state) beside it."""
+    raw depth, converted (robot removed by its joint state) beside it; by the ``hand`` demonstrator as hand
+    recordings, converted from their landmarks (``sim.hand_demonstrator``)."""
+    if settings.demonstrator == "hand":
+        from ..sim.hand_demonstrator import record_hand_demonstrations
+
+        record_hand_demonstrations(source, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
+                                   task_module=settings.task_module, label=task)
+        return
     if settings.obs_type != "rgbd":
         record(source, settings.num_demos, demos, f"local/{task}", seed, overwrite=True,
                task_module=settings.task_module, label=task)
@@ -243,6 +265,8 @@ def bullet_check(settings: SuiteSettings) -> str | None:
     """What is wrong with ``settings`` for ``bullet_tabletop`` (``None`` when nothing is)."""
     if settings.success not in SUCCESS_CRITERIA:
         return f"success must be one of {list(SUCCESS_CRITERIA)}, got {settings.success!r}"
+    if settings.demonstrator not in DEMONSTRATORS:
+        return f"demonstrator must be one of {list(DEMONSTRATORS)}, got {settings.demonstrator!r}"
     return None
 
 
@@ -261,7 +285,7 @@ def bullet_conditions(settings: SuiteSettings, task: str, env_values: dict[str, 
 
 
 SUITE_ENVS = {
-    ENV_TYPE: SuiteEnv(POLICIES, ("task_module", "obs_type", "success"), record_demonstrations,
+    ENV_TYPE: SuiteEnv(POLICIES, ("task_module", "obs_type", "success", "demonstrator"), record_demonstrations,
                        task_group, bullet_eval_flags, bullet_check, bullet_conditions),
     metaworld_suite.ENV_TYPE: SuiteEnv(metaworld_suite.POLICIES, ("episode_length", "pointcloud_every"),
                                        metaworld_suite.record_demonstrations, metaworld_suite.swap_group,
@@ -286,7 +310,7 @@ def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path | None,
         *settings.env.eval_flags(settings),
         *settings.env_args,
     ]
-    if settings.policy in DEMONSTRATION_POLICIES:
+    if settings.reads_demonstrations:
         command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
                     f"--policy.num_demos={settings.num_demos}"]
     return command + list(settings.policy_args)
@@ -406,6 +430,8 @@ def cell_record(settings: SuiteSettings, source: str | None) -> dict:
     record["env_args"] = [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)]
     record["policy_args"] = list(settings.policy_args)
     record["swap_source"] = source
+    if record.get("demonstrator") == "gripper":  # the default: cells recorded before the option read the same
+        del record["demonstrator"]
     return record
 
 

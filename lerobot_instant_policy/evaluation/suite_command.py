@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..sim.env import OBS_TYPES
+from ..sim.hand_demonstrator import DEMONSTRATORS
 from ..sim.task_api import get_task, task_names
 from . import metaworld_suite
 from .suite import ENV_TYPE, POLICIES, SEED_SPLITS, SUCCESS_CRITERIA, SuiteError, SuiteSettings, run_and_tabulate
@@ -154,6 +155,9 @@ def add_bullet_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--success", choices=SUCCESS_CRITERIA, default="held",
                         help="held: the goal state must hold for the task's hold time (default); instant: the first "
                              "step in the goal state counts (the earlier criterion)")
+    parser.add_argument("--demonstrator", choices=DEMONSTRATORS, default="gripper",
+                        help="who records the demonstration sets: the scripted robot gripper (default), or a simulated "
+                             "person's hand, converted from its landmarks (sim.hand_demonstrator)")
 
 
 def resolve_bullet_tasks(text: str, task_module: str | None) -> list[str]:
@@ -187,7 +191,8 @@ def resolve_metaworld_tasks(text: str) -> list[str]:
 BULLET_TABLETOP = SuiteCommand(
     env_type=ENV_TYPE, policies=POLICIES, tasks="all", tasks_help="comma-separated task names, or 'all'",
     demo_sets=3, out="outputs/eval_suite", add_arguments=add_bullet_arguments,
-    settings=lambda args: {"task_module": args.task_module, "obs_type": args.obs_type, "success": args.success},
+    settings=lambda args: {"task_module": args.task_module, "obs_type": args.obs_type, "success": args.success,
+                           "demonstrator": args.demonstrator},
     resolve_tasks=lambda args: resolve_bullet_tasks(args.tasks, args.task_module),
 )
 METAWORLD = SuiteCommand(

@@ -119,6 +119,16 @@ class Paraphrases:
                                   "file of your own and pass it)")
 
 
+def paraphrase_choice(spec: str) -> tuple[str, int]:
+    """``"SPLIT:K"`` (``seen:0``, ``held_out:1``: the K-th sentence of a task's split, from 0) → ``(SPLIT, K)``;
+    :class:`ParaphraseError` saying the form for anything else."""
+    split, _, index = spec.partition(":") if isinstance(spec, str) else ("", "", "")
+    if split not in SPLITS or not index.isdigit():
+        raise ParaphraseError(f"a paraphrase is chosen as SPLIT:K with SPLIT one of {list(SPLITS)} and K = 0, 1, …, "
+                              f"got {spec!r}")
+    return split, int(index)
+
+
 def normalise(sentence: str) -> str:
     """The form sentences are compared in: case-folded, whitespace collapsed, a final full stop dropped."""
     return " ".join(sentence.casefold().split()).rstrip(".")

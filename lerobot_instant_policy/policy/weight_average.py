@@ -10,7 +10,8 @@ lies nearer it when that wandering, not the minimum's own progress, dominates th
 
 It is saved with every LeRobot checkpoint, ``training_state/weight_average.safetensors`` (the parameters by their
 names in the policy's state dict, the decay and the updates in its metadata), and read back on ``--resume=true``:
-``pretrained_model/`` keeps the raw weights the run continues from, and the average goes on where it stopped.
+``pretrained_model/`` keeps the raw weights the run continues from, and the average goes on where it stopped (with
+the saved decay unless ``--average.decay`` gives another).
 :func:`write_averaged_model` turns a save into a ``pretrained_model`` folder holding the average, which every command
 that reads a checkpoint loads.
 """
@@ -81,6 +82,15 @@ class WeightAverage:
         with safe_open(str(path), framework="pt") as handle:
             average.updates = int(handle.metadata()["updates"])
         return average
+
+
+def saved_decay(training_state: Path | None) -> float | None:
+    """The decay of the average saved in ``training_state`` (a checkpoint's folder), ``None`` where it holds none."""
+    path = None if training_state is None else Path(training_state) / AVERAGE_FILE
+    if path is None or not path.is_file():
+        return None
+    with safe_open(str(path), framework="pt") as handle:
+        return float(handle.metadata()["decay"])
 
 
 def write_averaged_model(save: Path, out: Path) -> Path:

@@ -1,8 +1,10 @@
-"""Fixtures of the language room's tests: the shipped checkpoint, the default text encoder, the shipped paraphrases, a
-tiny demonstration dataset of two suite tasks and a synthetic targets set in which only the words tell tasks apart."""
+"""Fixtures of the language room's tests: the network blocked, the shipped checkpoint, the default text encoder, the
+shipped paraphrases, a tiny demonstration dataset of two suite tasks and a synthetic targets set in which only the
+words tell tasks apart."""
 
 from __future__ import annotations
 
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,17 @@ DATASET_TASKS = {"pick_and_lift": "pb/mug", "knock_over": "pb/duck"}
 EPISODES_PER_TASK = 3
 SYNTHETIC_TASKS = ["pick_and_lift", "knock_over", "open_drawer"]
 SYNTHETIC_SCENES = 8
+
+
+@pytest.fixture
+def no_network(monkeypatch):
+    """Every attempt to open a connection fails."""
+
+    def refuse(*args, **kwargs):
+        raise OSError("network access attempted during a test that forbids it")
+
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    monkeypatch.setattr(socket.socket, "connect_ex", refuse)
 
 
 @pytest.fixture(scope="session")

@@ -18,17 +18,6 @@ from lerobot_instant_policy.language.text_encoder import (
 )
 
 
-@pytest.fixture
-def no_network(monkeypatch):
-    """Every attempt to open a connection fails."""
-
-    def refuse(*args, **kwargs):
-        raise OSError("network access attempted during a test that forbids it")
-
-    monkeypatch.setattr(socket.socket, "connect", refuse)
-    monkeypatch.setattr(socket.socket, "connect_ex", refuse)
-
-
 def test_wordllama_gives_deterministic_unit_vectors_of_256_dimensions(wordllama):
     sentences = ["open the drawer", "Pick up the cube and lift it.", "press the button"]
     vectors = wordllama.encode(sentences)
