@@ -391,6 +391,7 @@ def test_the_committed_metaworld_manifest_rederives_its_paired_differences(tmp_p
     tasks, and resampling cells (the interval the table gave before tasks were the default)."""
     manifest = REPO / "docs" / "results_metaworld_mt10_test.manifest.json"
     arguments = [str(manifest), "--env-type", "metaworld_pointcloud", "--paired", "instant_policy=demo_replay",
+                 "--allow-difference", "policy_options",  # its demo_replay_per_object column
                  "--json", "--out", str(tmp_path / "t")]
     assert eval_table(arguments) == 0
     table = json.loads(capsys.readouterr().out)
