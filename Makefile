@@ -242,7 +242,9 @@ eval-metaworld: $(INSTALLED) osmesa
 # A demonstration set recorded here with other bytes than the committed column's (pybullet on another CPU: 7 of the
 # suite's 36 sets on 2026-11-27) would pair other demonstrations: the committed columns' tasks with such a set are
 # evaluated again here (runs redo-<column>) and amend those columns before the join. Episodes on other machines may
-# still end otherwise (float arithmetic in a closed loop): docs/training.md, "Shipping on evidence".
+# still end otherwise (float arithmetic in a closed loop): docs/training.md, "Shipping on evidence". Last, the ship gate
+# (workbench/ship_gate.py): the candidate ships when its difference from the shipped checkpoint pooled over both
+# benchmarks' 22 tasks is resolved above zero and neither benchmark's is resolved below.
 # SUITE_ARGS=--resume continues an interrupted run.
 CANDIDATE ?= checkpoints/stream/best/pretrained_model
 CANDIDATE_NAME ?= standing_best
@@ -272,6 +274,9 @@ results-candidate: $(INSTALLED) osmesa
 	$(METAWORLD) --policy instant_policy --policy-path $(CANDIDATE) --run-name $(CANDIDATE_NAME)
 	$(call candidate_join,$(METAWORLD),$(METAWORLD_OUT),$(METAWORLD_TABLE),instant_policy demo_replay,\
 		--env-type metaworld_pointcloud --out docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME))
+	$(VENV)/bin/python -m workbench.cli.ship_gate $(CANDIDATE_NAME) instant_policy \
+		docs/results_suite_$(SPLIT)_$(CANDIDATE_NAME).manifest.json \
+		docs/results_metaworld_$(METAWORLD_TASKS)_$(SPLIT)_$(CANDIDATE_NAME).manifest.json
 
 POLICY ?= demo_replay
 eval-suite: $(INSTALLED)

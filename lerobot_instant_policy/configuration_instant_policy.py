@@ -186,6 +186,10 @@ class InstantPolicyConfig(PreTrainedConfig):
         language_paraphrase: with ``context="language"``, the sentence that says a task string of the paraphrase
             file (``push_button``, ``reach-v3``): ``SPLIT:K``, the K-th of its ``seen`` or ``held_out`` sentences
             (default ``"seen:0"``); any other task string is read as the sentence itself.
+        language_instruction: with ``context="language"``, what every row is told instead of its own ``task``
+            string: a task name of the paraphrase file (said with ``language_paraphrase``) or a sentence (default
+            ``None``: each row's task). An instruction of the user's own where the env's task string is not what
+            they mean to say; the suite's context-swap control tells each task another task's name.
         n_action_steps: actions of each prediction run before predicting again, 1…``horizon`` (default 8).
         replan_on_gripper_change: drop the queued actions after one that changes the gripper command, so the policy
             looks again once the gripper has acted (default ``True``).
@@ -260,6 +264,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     context: str = "demonstrations"
     language_head_path: str | None = None
     language_paraphrase: str = "seen:0"
+    language_instruction: str | None = None
 
     n_action_steps: int = 8
     replan_on_gripper_change: bool = True
@@ -364,7 +369,13 @@ class InstantPolicyConfig(PreTrainedConfig):
         except ValueError as error:
             raise ValueError(f"language_paraphrase: {error}") from error
         if self.context != "language":
+            if self.language_instruction is not None:
+                raise ValueError(f"language_instruction {self.language_instruction!r} is said in words only with "
+                                 "context='language'")
             return
+        if self.language_instruction is not None and not self.language_instruction.strip():
+            raise ValueError("language_instruction must be a non-blank task name or sentence, or None (each row's "
+                             "task)")
         if self.demo_repo_id is not None:
             raise ValueError(f"context='language' says each task in words, without demonstrations, but demo_repo_id is "
                              f"{self.demo_repo_id!r}: drop demo_repo_id, or use context='demonstrations'")

@@ -120,7 +120,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._demonstrations = DemonstrationSource(
             "instant_policy", config.demo_repo_id, config.demo_root, config.num_demos
         )
-        self._language = (TaskLanguage(config.language_head_path, config.language_paraphrase)
+        self._language = (TaskLanguage(config.language_head_path, config.language_paraphrase,
+                                       instruction=config.language_instruction)
                           if config.context == "language" else None)
 
     def load_encoder_weights(self, path: str | Path) -> None:

@@ -26,7 +26,8 @@ from lerobot_instant_policy.processor_instant_policy import make_instant_policy_
 
 # options added after the shipped config.json was written: how an evaluation gets its context, not the model; the
 # checkpoint loads them at these defaults
-ADDED_SINCE_SHIPPED = {"context": "demonstrations", "language_head_path": None, "language_paraphrase": "seen:0"}
+ADDED_SINCE_SHIPPED = {"context": "demonstrations", "language_head_path": None, "language_paraphrase": "seen:0",
+                       "language_instruction": None}
 
 
 def config(**overrides) -> InstantPolicyConfig:

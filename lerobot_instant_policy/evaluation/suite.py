@@ -13,7 +13,9 @@ Protocol. For every task and every demonstration set ``s = 0 … demo_sets − 1
 * with ``swap``, the policy instead reads the demonstrations of another task of the suite, one that asks for
   something else (``swap_sources``: a permutation, every task's demonstrations read by one other task, of another
   task group; the same seeds), relabelled as this task's: the control that tells reading the demonstrations from a
-  prior that solves the task alone.
+  prior that solves the task alone. With ``--policy.context=language`` the policy reads no demonstrations and is
+  told the other task's name instead (``--policy.language_instruction``): the control that tells following the words
+  from acting on the scene alone.
 
 Seeds come in two disjoint splits (``SEED_SPLITS``): ``dev`` (demonstrations from seed 0, episodes from 1000), on
 which every study, option and checkpoint is chosen, and ``test`` (demonstrations from 50,000, episodes from 60,000),
@@ -144,8 +146,9 @@ class SuiteSettings:
             raise SuiteError("episodes, demo_sets, batch_size and num_demos must be positive")
         if self.policy == "instant_policy" and not self.policy_path:
             raise SuiteError("instant_policy needs a policy_path (a pretrained_model directory)")
-        if self.swap and not self.reads_demonstrations:
-            raise SuiteError(f"the context swap needs a policy that reads demonstrations, not {self.policy!r}")
+        if self.swap and not (self.reads_demonstrations or self.says_tasks_in_words):
+            raise SuiteError(f"the context swap needs a policy that reads demonstrations or the task in words, not "
+                             f"{self.policy!r}")
         check_seeds(self.num_demos, self.demo_seed, self.eval_seed, self.episodes, self.demo_sets)
 
     @property
@@ -169,6 +172,11 @@ class SuiteSettings:
         """Whether the policy reads recorded demonstrations: ``DEMONSTRATION_POLICIES``, but not ``instant_policy``
         told ``--policy-arg context=language`` (each task said in words)."""
         return self.policy in DEMONSTRATION_POLICIES and LANGUAGE_CONTEXT_ARG not in self.policy_args
+
+    @property
+    def says_tasks_in_words(self) -> bool:
+        """Whether the policy is ``instant_policy`` told ``--policy-arg context=language``."""
+        return self.policy == "instant_policy" and LANGUAGE_CONTEXT_ARG in self.policy_args
 
     def demos_of(self, task: str, demo_set: int, source: str | None) -> Path | None:
         """The demonstration dataset the policy reads in this cell, ``None`` for a policy that reads none."""
@@ -294,9 +302,10 @@ SUITE_ENVS = {
 
 
 def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path | None, eval_seed: int,
-                         output_dir: Path) -> list[str]:
+                         output_dir: Path, source: str | None = None) -> list[str]:
     """The ``lerobot-eval`` command line for one task and demonstration set (run through ``LEROBOT_EVAL``, which
-    keeps each episode's seed in ``eval_info.json``)."""
+    keeps each episode's seed in ``eval_info.json``); ``source``: the swap control's other task, whose name a policy
+    that reads the task in words is told."""
     command = [
         sys.executable, "-m", LEROBOT_EVAL,
         f"--env.type={settings.env_type}",
@@ -313,6 +322,8 @@ def lerobot_eval_command(settings: SuiteSettings, task: str, demos: Path | None,
     if settings.reads_demonstrations:
         command += [f"--policy.demo_repo_id=local/{task}", f"--policy.demo_root={demos}",
                     f"--policy.num_demos={settings.num_demos}"]
+    if source is not None and settings.says_tasks_in_words:
+        command.append(f"--policy.language_instruction={source}")
     return command + list(settings.policy_args)
 
 
@@ -324,7 +335,7 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     if demos is not None and not (demos / "meta" / "info.json").is_file():
         settings.env.record(settings, task, demos, seed, source or task)
     output_dir = cell_dir(settings.runs_dir, task, demo_set)
-    command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir)
+    command = lerobot_eval_command(settings, task, demos, settings.eval_seed_of(demo_set), output_dir, source)
     conditions = cell_conditions(settings, task)
     run_lerobot_eval(command, settings.runs_dir, task, demo_set)
     write_cell_record(settings, task, demo_set, source, conditions)

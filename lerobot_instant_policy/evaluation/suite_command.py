@@ -91,7 +91,8 @@ def add_suite_arguments(parser: argparse.ArgumentParser, policies: tuple[str, ..
     add_seed_arguments(parser)
     parser.add_argument("--swap", action="store_true",
                         help="the context-swap control: each task reads the demonstrations of a task that asks for "
-                             "something else (another group), relabelled")
+                             "something else (another group), relabelled; with --policy-arg context=language it is "
+                             "told that task's name instead")
     parser.add_argument("--out", type=Path, default=Path(out))
     parser.add_argument("--policy-arg", dest="policy_args", type=parse_policy_arg, action="append", default=[],
                         metavar="KEY=VALUE",

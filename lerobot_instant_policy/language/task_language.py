@@ -5,7 +5,7 @@ frozen network samples actions exactly as it does after demonstrations.
 * The sentence: a task string that names a task of the paraphrase file (the strings ``bullet_tabletop``'s and
   MetaWorld's envs give, ``push_button``, ``reach-v3``) is said with its paraphrase ``SPLIT:K``, the K-th of its
   ``seen`` or ``held_out`` sentences (:func:`~.paraphrases.paraphrase_choice`); any other string is the sentence
-  itself, a task said in the user's own words.
+  itself, a task said in the user's own words. An ``instruction`` given once replaces every row's task string.
 * The vector: the text encoder the head was trained with (its :class:`~.language_head.HeadBinding`), once per
   distinct sentence.
 * The head: read from its directory on first use (default :data:`SHIPPED_LANGUAGE_HEAD`, trained for the shipped
@@ -42,11 +42,14 @@ class TaskLanguage:
         head_path: the head's directory (``config.json`` + ``model.safetensors``); ``None``: the shipped head.
         paraphrase: ``SPLIT:K``, the paraphrase that says a task of ``paraphrases_file``.
         paraphrases_file: the paraphrase file (default: the shipped one).
+        instruction: what every row is told instead of its task string (a task name or a sentence, said as a task
+            string is); ``None``: each row's task.
     """
 
     def __init__(self, head_path: str | Path | None = None, paraphrase: str = "seen:0",
-                 paraphrases_file: str | Path = PARAPHRASES_FILE):
+                 paraphrases_file: str | Path = PARAPHRASES_FILE, instruction: str | None = None):
         self.head_path = SHIPPED_LANGUAGE_HEAD if head_path is None else Path(head_path).expanduser()
+        self.instruction = instruction
         self.split, self.index = paraphrase_choice(paraphrase)
         self.paraphrases = Paraphrases.load(paraphrases_file)
         self._known_tasks = set(self.paraphrases.tasks)
@@ -56,11 +59,12 @@ class TaskLanguage:
         self._checked_weights: tuple | None = None
 
     def sentence(self, task: str) -> str:
-        """The sentence that says ``task`` (module docstring)."""
+        """The sentence that says ``task``, or the instruction in its place (module docstring)."""
         if not isinstance(task, str) or not task.strip():
             raise TaskLanguageError(
                 f"context=language reads the task in words, but a batch row's task is {task!r}: pass batch['task'], a "
                 "non-blank task name or sentence per row (lerobot-eval passes the env's task)")
+        task = self.instruction or task
         if task not in self._known_tasks:
             return task
         sentences = self.paraphrases[task].split(self.split)

@@ -68,7 +68,7 @@ def test_swap_reads_another_groups_task_on_every_task_of_the_suite():
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"demo_sets": 0}, "must be positive"),
     ({"policy": "instant_policy"}, "needs a policy_path"),
-    ({"policy": "do_nothing", "swap": True}, "needs a policy that reads demonstrations"),
+    ({"policy": "do_nothing", "swap": True}, "needs a policy that reads demonstrations or the task in words"),
     ({"demo_seed": 1000}, "overlap evaluation seeds"),
     ({"success": "eventually"}, "success must be one of"),
     ({"eval_seed": 250}, "overlap evaluation seeds"),

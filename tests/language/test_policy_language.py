@@ -16,7 +16,8 @@ import torch
 from synthetic_demos import make_demonstration, object_pose
 
 from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT, InstantPolicyConfig
-from lerobot_instant_policy.evaluation.suite import SuiteSettings, lerobot_eval_command
+from lerobot_instant_policy.evaluation.success_table import TASK_GROUPS
+from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings, lerobot_eval_command, swap_sources
 from lerobot_instant_policy.language.language_head import LanguageHead, LanguageHeadError
 from lerobot_instant_policy.language.task_language import SHIPPED_LANGUAGE_HEAD, TaskLanguageError
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
@@ -82,6 +83,18 @@ def test_the_words_decide_the_actions(policy, observation, paraphrases):
                                rtol=0, atol=0)
 
 
+def test_an_instruction_replaces_every_rows_task(policy, observation, paraphrases):
+    """``language_instruction`` tells every row the same words whatever its task: a task name is said with its
+    paraphrase, a sentence as itself."""
+    told = language_policy("--language_instruction=open_drawer")
+    torch.testing.assert_close(first_action(told, {**observation, "task": ["push_button"]}),
+                               first_action(policy, {**observation, "task": ["open_drawer"]}), rtol=0, atol=0)
+    sentence = paraphrases["open_drawer"].held_out[0]
+    told = language_policy(f"--language_instruction={sentence}")
+    torch.testing.assert_close(first_action(told, {**observation, "task": ["push_button"]}),
+                               first_action(policy, {**observation, "task": [sentence]}), rtol=0, atol=0)
+
+
 def test_handed_in_demonstrations_take_precedence_over_the_words(policy, observation):
     """A task whose demonstrations were handed in acts on them, as with the demonstrations context."""
     demos = [make_demonstration(object_pose(0.45 + 0.05 * i, 0.05 * i, 10.0 * i), "pick_and_lift", seed=i)
@@ -124,6 +137,8 @@ def test_a_missing_head_or_one_of_another_network_is_refused(tmp_path, observati
     ({"context": "language", "preset": "refined"}, "no demonstrations to replay"),
     ({"language_paraphrase": "held_out"}, "language_paraphrase: a paraphrase is chosen as SPLIT:K"),
     ({"language_paraphrase": "unseen:0"}, "language_paraphrase: a paraphrase is chosen as SPLIT:K"),
+    ({"language_instruction": "open_drawer"}, "said in words only with context='language'"),
+    ({"context": "language", "language_instruction": "  "}, "non-blank task name or sentence"),
 ])
 def test_bad_language_settings_are_refused(overrides, message):
     with pytest.raises(ValueError, match=message):
@@ -144,6 +159,23 @@ def test_the_suite_runs_the_language_context_without_demonstrations(tmp_path):
     assert "--policy.context=language" in command and not any("demo_" in arg for arg in command)
     with_demos = SuiteSettings(policy="instant_policy", policy_path=str(SHIPPED_CHECKPOINT), out=tmp_path)
     assert with_demos.reads_demonstrations and with_demos.demos_of("push_button", 0, None) is not None
+
+
+def test_the_swap_control_tells_each_task_another_tasks_name(tmp_path):
+    """With the language context the swap reads no demonstrations: each task's run is told its source task's name,
+    a task of another group (``swap_sources``)."""
+    settings = SuiteSettings(policy="instant_policy", policy_path=str(SHIPPED_CHECKPOINT), out=tmp_path, swap=True,
+                             policy_args=("--policy.context=language",))
+    settings.validate()
+    sources = swap_sources(sorted(task for group in TASK_GROUPS.values() for task in group), settings.env.group_of)
+    assert all(settings.env.group_of(source) != settings.env.group_of(task) for task, source in sources.items())
+    command = lerobot_eval_command(settings, "push_button", None, 1000, tmp_path / "run", sources["push_button"])
+    assert f"--policy.language_instruction={sources['push_button']}" in command
+    assert not any("demo_" in arg for arg in command) and settings.name == "instant_policy-swap"
+    unswapped = lerobot_eval_command(settings, "push_button", None, 1000, tmp_path / "run")
+    assert not any("language_instruction" in arg for arg in unswapped)
+    with pytest.raises(SuiteError, match="reads demonstrations or the task in words"):
+        SuiteSettings(policy="do_nothing", out=tmp_path, swap=True).validate()
 
 
 def test_lerobot_eval_runs_a_task_said_in_words(tmp_path):
