@@ -88,9 +88,11 @@ LADDER_STEPS ?= 8000
 FROM ?=
 LADDER_DIR = outputs/train/$(RUNG_NAME)$(if $(FROM),_from_$(FROM),)
 LADDER_FROM_CHECKPOINT = outputs/train/$(call rung_name,$(FROM))/checkpoints/last/pretrained_model
-# A fresh network is InstantPolicyConfig's defaults (the shipped model and its recipe: lr 1e-3, 100 warmup steps,
-# gripper weight 0.01), trained in bfloat16 autocast.
-LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.use_amp=true)
+# A fresh network is InstantPolicyConfig's defaults (the shipped model: 100 warmup steps, gripper weight 0.01) at the
+# ladder's rate, 1e-3 (the defaults' 2e-4 is the rate of the shipped checkpoint's later training on the stream),
+# trained in bfloat16 autocast.
+LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.use_amp=true \
+	--policy.optimizer_lr=1e-3)
 LADDER_CONFIGS = workbench/configs/generate
 LADDER_VAL_CONFIG = $(LADDER_CONFIGS)/$(RUNG_NAME)_val.json
 ladder: $(INSTALLED)

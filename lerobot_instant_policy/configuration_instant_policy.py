@@ -83,7 +83,7 @@ class InstantPolicyPreset:
 
 
 _SMALL = dict(hidden_dim=128, num_heads=4, local_layers=2, context_layers=2, action_layers=2, encoder_preset="small",
-              num_frequencies=4, action_scene_graph=False, reencode_action_clouds=False, max_demos=2, optimizer_lr=1e-3)
+              num_frequencies=4, action_scene_graph=False, reencode_action_clouds=False, max_demos=2, optimizer_lr=2e-4)
 PRESETS: dict[str, InstantPolicyPreset] = {
     "small": InstantPolicyPreset(**_SMALL, refine_fraction=0.0, replay_init_strength=None, replay_per_object=False),
     "paper": InstantPolicyPreset(
@@ -165,8 +165,9 @@ class InstantPolicyConfig(PreTrainedConfig):
             never the label), in [0, 1] (default 0.1).
         gripper_loss_weight: the weight of the gripper's binary cross-entropy in the loss, next to the translation
             and rotation flow errors, non-negative (default 0.01).
-        optimizer_lr: AdamW's peak learning rate, positive (``None``: ``small`` 1e-3, ``paper`` 1e-5). AdamW runs
-            PyTorch's fused kernel on the CPU and CUDA (:class:`~.policy.optimizer.InstantPolicyAdamWConfig`).
+        optimizer_lr: AdamW's peak learning rate, positive (``None``: ``small`` 2e-4, the rate of the shipped
+            checkpoint's training on the pseudo-task stream, ``paper`` 1e-5). AdamW runs PyTorch's fused kernel on
+            the CPU and CUDA (:class:`~.policy.optimizer.InstantPolicyAdamWConfig`).
         optimizer_betas: AdamW's betas (default (0.9, 0.999)).
         optimizer_eps: AdamW's eps (default 1e-8).
         optimizer_weight_decay: AdamW's weight decay (default 0.01).

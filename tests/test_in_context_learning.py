@@ -36,7 +36,7 @@ def test_a_short_rung1_run_reads_its_demonstrations(tmp_path):
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
     out = tmp_path / "run"
     command = [
-        str(TRAIN), "--policy.type=instant_policy", "--policy.use_amp=true",
+        str(TRAIN), "--policy.type=instant_policy", "--policy.use_amp=true", "--policy.optimizer_lr=1e-3",
         "--dataset.repo_id=local/reach_train", f"--dataset.root={tmp_path / 'train'}", f"--steps={STEPS}",
         "--batch_size=8", "--num_workers=1", f"--save_freq={STEPS}", "--log_freq=100", "--wandb.enable=false",
         "--seed=1", "--policy.device=cpu", f"--output_dir={out}",

@@ -24,11 +24,6 @@ from lerobot_instant_policy.model.occupancy import OccupancyNetwork, save_occupa
 from lerobot_instant_policy.policy.config_migration import RETIRED_OPTIONS
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 
-# options added after the shipped config.json was written: how an evaluation gets its context, not the model; the
-# checkpoint loads them at these defaults
-ADDED_SINCE_SHIPPED = {"context": "demonstrations", "language_head_path": None, "language_paraphrase": "seen:0",
-                       "language_instruction": None}
-
 
 def config(**overrides) -> InstantPolicyConfig:
     return InstantPolicyConfig(device="cpu", **overrides)
@@ -56,18 +51,16 @@ def test_defaults_follow_the_paper_and_lerobot_facts():
 def test_defaults_are_the_shipped_model_so_no_flag_trains_it():
     """``lerobot-train --policy.type=instant_policy`` with no policy flag trains the shipped checkpoint's model and
     recipe: its config.json holds every field of the config and nothing else, each with the default's value, but
-    ``type`` (which LeRobot writes beside the fields), ``pretrained_path`` (which LeRobot sets when it loads one) and
-    the removed options as ``null`` (which loading drops); it lacks the options added since
-    (:data:`ADDED_SINCE_SHIPPED`), which load at their defaults."""
+    ``type`` (which LeRobot writes beside the fields) and ``pretrained_path`` (which LeRobot sets when it loads
+    one)."""
     from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
     defaults = json.loads(json.dumps(draccus.encode(config())))
-    assert set(shipped) - {"type"} - set(RETIRED_OPTIONS) == set(defaults) - set(ADDED_SINCE_SHIPPED)
-    assert {name: defaults[name] for name in ADDED_SINCE_SHIPPED} == ADDED_SINCE_SHIPPED
+    assert set(shipped) - {"type"} == set(defaults)
     assert shipped["type"] == "instant_policy"
     differing = {key: (shipped[key], value) for key, value in defaults.items()
-                 if key not in {"pretrained_path", *ADDED_SINCE_SHIPPED} and shipped[key] != value}
+                 if key != "pretrained_path" and shipped[key] != value}
     assert differing == {}
     assert defaults["use_amp"] is False  # not the checkpoint's: bfloat16 autocast is the machine's choice
 
@@ -94,9 +87,9 @@ def test_the_refined_preset_is_the_small_model_trained_and_run_from_the_replay()
 
 
 def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
-    """The shipped config.json, written before four options were removed, names them as ``null``: it loads the ways
-    LeRobot and this package load a checkpoint's config, as a config without them, and so does one where each has the
-    value the model kept (dropped with a warning); any other value is refused, naming it. Saving writes none of them."""
+    """A config.json written before four options were removed names them as ``null``: it loads the ways LeRobot and
+    this package load a checkpoint's config, as a config without them, and so does one where each has the value the
+    model kept (dropped with a warning); any other value is refused, naming it. Saving writes none of them."""
     from lerobot.configs.train import TrainPipelineConfig
 
     from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
@@ -104,28 +97,27 @@ def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
     assert set(RETIRED_OPTIONS) == {"dense_attention", "context_scene_edges", "flow_loss_weighting", "noise_draws"}
     assert not set(RETIRED_OPTIONS) & {field.name for field in dataclasses.fields(InstantPolicyConfig)}
     shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
-    assert all(name in shipped and shipped[name] is None for name in RETIRED_OPTIONS)  # the old file, unchanged
+    assert not set(RETIRED_OPTIONS) & set(shipped)
     loaded = PreTrainedConfig.from_pretrained(SHIPPED_CHECKPOINT)
     assert isinstance(loaded, InstantPolicyConfig) and loaded == InstantPolicyConfig.from_pretrained(SHIPPED_CHECKPOINT)
-    assert {key: value for key, value in shipped.items() if key not in RETIRED_OPTIONS and key != "type"} == {
-        key: value for key, value in json.loads(json.dumps(draccus.encode(loaded))).items()
-        if key not in ADDED_SINCE_SHIPPED}
+    (tmp_path / "config.json").write_text(json.dumps({**shipped, **dict.fromkeys(RETIRED_OPTIONS)}))
+    assert PreTrainedConfig.from_pretrained(tmp_path) == loaded
     assert "dropped removed options" not in caplog.text  # null: nothing to say
     loaded.save_pretrained(tmp_path / "saved")
     assert not set(RETIRED_OPTIONS) & set(json.loads((tmp_path / "saved" / "config.json").read_text()))
 
-    older = {**shipped, "dense_attention": False, "context_scene_edges": False, "flow_loss_weighting": "uniform",
-             "noise_draws": 1}
+    kept = {"dense_attention": False, "context_scene_edges": False, "flow_loss_weighting": "uniform", "noise_draws": 1}
+    older = {**shipped, **kept}
     (tmp_path / "config.json").write_text(json.dumps(older))
     assert PreTrainedConfig.from_pretrained(tmp_path) == loaded
     assert "dropped removed options" in caplog.text and "noise_draws=1" in caplog.text
     # lerobot-train --policy.path: a CLI override still applies
     assert PreTrainedConfig.from_pretrained(tmp_path, cli_overrides=["--num_demos=3"]).num_demos == 3
-    # lerobot-train --resume: the policy section of train_config.json (the shipped one names the options with the
-    # values the model kept)
+    # lerobot-train --resume: the policy section of an older train_config.json names the options with those values
     train_config = json.loads((SHIPPED_CHECKPOINT / "train_config.json").read_text())
-    assert RETIRED_OPTIONS.keys() <= train_config["policy"].keys()
-    resumed = TrainPipelineConfig.from_pretrained(SHIPPED_CHECKPOINT / "train_config.json")
+    train_config["policy"].update(kept)
+    (tmp_path / "train_config.json").write_text(json.dumps(train_config))
+    resumed = TrainPipelineConfig.from_pretrained(tmp_path / "train_config.json")
     assert isinstance(resumed.policy, InstantPolicyConfig) and resumed.policy.hidden_dim == loaded.hidden_dim
     for name, value in (("noise_draws", 4), ("flow_loss_weighting", "noise"), ("context_scene_edges", True)):
         (tmp_path / "config.json").write_text(json.dumps({**older, name: value}))
@@ -175,7 +167,7 @@ def test_optimizer_and_scheduler_presets():
     cfg = config(preset="small", optimizer_grad_clip_norm=0.5, scheduler_warmup_steps=10)
     optimizer_config = cfg.get_optimizer_preset()
     assert optimizer_config.type == "instant_policy_adamw"
-    assert (optimizer_config.lr, optimizer_config.grad_clip_norm) == (1e-3, 0.5)
+    assert (optimizer_config.lr, optimizer_config.grad_clip_norm) == (2e-4, 0.5)
     parameter = torch.nn.Parameter(torch.zeros(3))
     optimizer = optimizer_config.build([parameter])
     assert isinstance(optimizer, torch.optim.AdamW) and optimizer.defaults["fused"]  # fused on the CPU
@@ -185,8 +177,8 @@ def test_optimizer_and_scheduler_presets():
         rates.append(optimizer.param_groups[0]["lr"])
         optimizer.step()
         scheduler.step()
-    assert rates[0] == 0.0 and rates[10] == pytest.approx(1e-3)  # linear warmup to the peak
-    assert rates[55] == pytest.approx(5e-4, rel=1e-3) and rates[-1] < 1e-5  # then cosine decay to zero
+    assert rates[0] == 0.0 and rates[10] == pytest.approx(2e-4)  # linear warmup to the peak
+    assert rates[55] == pytest.approx(1e-4, rel=1e-3) and rates[-1] < 2e-6  # then cosine decay to zero
 
 
 @pytest.mark.parametrize(
