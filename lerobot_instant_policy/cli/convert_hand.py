@@ -43,6 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-gap-frames", type=int, default=defaults.max_gap_frames,
                         help="longest run of frames without a hand that is bridged (longer: an error)")
     parser.add_argument("--ee-offset", type=_floats, default=defaults.ee_offset_m, help="x,y,z (m, EE frame)")
+    parser.add_argument("--window-frames", type=int, default=HandConvertSettings.window_frames,
+                        help="landmarks averaged over this many frames centred on each (odd; 1: off) before mapping")
     parser.add_argument("--position-smoothing", type=float, default=defaults.position_smoothing)
     parser.add_argument("--rotation-smoothing", type=float, default=defaults.rotation_smoothing)
     parser.add_argument("--hand", choices=("Left", "Right"), help="only frames of this hand count (default: either)")
@@ -81,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         summary = convert_hand_recordings(HandConvertSettings(
             recordings=args.recordings, out=args.out, repo_id=args.repo_id, mapping=mapping,
+            window_frames=args.window_frames,
             num_points=args.num_points, hand_radius_m=args.hand_radius,
             hand_mask_dilate_px=args.hand_mask_dilate, min_hand_score=args.min_hand_score,
             hand=args.hand, workspace_low=args.workspace_low, workspace_high=args.workspace_high,

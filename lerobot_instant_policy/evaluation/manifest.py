@@ -82,6 +82,7 @@ class CellOutcome:
     swap_source: str | None
     successes: tuple[bool, ...]
     seeds_reported: bool | None = None  # True: lerobot-eval reported eval_seeds; False: it reported none; None: unknown
+    demonstrator: str = "gripper"  # who recorded the demonstrations: the scripted gripper, or a (simulated) hand
 
     @property
     def key(self) -> tuple[str, int]:
@@ -155,7 +156,7 @@ def read_cell(cell_dir: Path) -> tuple[dict, CellOutcome]:
                             f"{_span(cell['eval_seeds'])}")
     return record, CellOutcome(str(cell["task"]), int(cell["demo_set"]), tuple(cell["eval_seeds"]), cell["demo_seed"],
                                cell["num_demos"], cell["demo_fingerprint"], cell["swap_source"], successes,
-                               seeds is not None)
+                               seeds is not None, record.get("demonstrator", "gripper"))
 
 
 def _span(seeds) -> str:
@@ -181,7 +182,8 @@ def column_manifest(run_dir: Path) -> dict:
 def cells_of(manifest: dict) -> dict[tuple[str, int], CellOutcome]:
     """A manifest's cells by ``(task, demo_set)`` (a field a manifest lacks takes its default: unknown)."""
     fields = CellOutcome.__dataclass_fields__
-    cells = [CellOutcome(**{**{key: value for key, value in cell.items() if key in fields},
+    demonstrator = manifest["settings"].get("demonstrator", "gripper")
+    cells = [CellOutcome(**{"demonstrator": demonstrator, **{key: value for key, value in cell.items() if key in fields},
                             "eval_seeds": tuple(cell["eval_seeds"]), "successes": tuple(cell["successes"])})
              for cell in manifest["cells"]]
     return {cell.key: cell for cell in cells}
@@ -252,11 +254,12 @@ def check_joinable(manifests: dict[str, dict], allowed: tuple[str, ...] = ()) ->
 
 
 def _same_source_readers(column_cells: dict[str, CellOutcome]) -> list[dict[str, CellOutcome]]:
-    """One cell's columns (name → cell) that read demonstrations, grouped by what they read: the same source task
-    and number of demonstrations."""
+    """One cell's columns (name → cell) that read demonstrations, grouped by what they read: the same source task,
+    number of demonstrations and demonstrator (a hand's demonstrations of a seed are not the gripper's)."""
     with_demos = {name: cell for name, cell in column_cells.items() if cell.demo_fingerprint is not None}
-    return [{name: cell for name, cell in with_demos.items() if (cell.swap_source, cell.num_demos) == group}
-            for group in sorted({(cell.swap_source, cell.num_demos) for cell in with_demos.values()}, key=str)]
+    groups = {name: (cell.swap_source, cell.num_demos, cell.demonstrator) for name, cell in with_demos.items()}
+    return [{name: with_demos[name] for name, group in groups.items() if group == chosen}
+            for chosen in sorted(set(groups.values()), key=str)]
 
 
 def recorded_differently(manifests: dict[str, dict]) -> list[str]:

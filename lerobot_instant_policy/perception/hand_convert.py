@@ -7,9 +7,9 @@ Per recording (one episode):
    with the hand camera's depth and calibration (``hand.lift_image_landmarks``, frame by frame since a camera may
    move); a frame whose ``hand_score`` is below ``min_hand_score``, or whose ``handedness`` is not ``hand`` (when
    set), counts as missing;
-2. the gripper: ``hand.map_hand_to_gripper`` (EE pose, gripper state with hysteresis, gaps of at most
-   ``mapping.max_gap_frames`` bridged and marked; a longer gap raises ``HandGapError`` naming the recording and its
-   frames);
+2. the gripper: ``hand.map_hand_to_gripper`` (the landmarks averaged over a centred window of ``window_frames``,
+   then EE pose, gripper state with hysteresis, gaps of at most ``mapping.max_gap_frames`` bridged and marked; a
+   longer gap raises ``HandGapError`` naming the recording and its frames);
 3. the clouds: every camera's depth back-projected and fused, the hand removed — its pixels (``hand_mask``, when the
    recording has one, grown by ``hand_mask_dilate_px`` for a detector's mask, ``ClearHandPixelsStep``) and everything
    within ``hand_radius_m`` of its skeleton (``MaskHandPointsStep``; on a frame where a landmark is missing, that
@@ -67,6 +67,7 @@ class HandConvertSettings:
     out: Path
     repo_id: str
     mapping: HandMappingConfig = field(default_factory=HandMappingConfig)
+    window_frames: int = 5
     num_points: int = 2048
     hand_radius_m: float = 0.015
     hand_mask_dilate_px: int = 2
@@ -84,6 +85,8 @@ class HandConvertSettings:
             raise HandConversionError(f"min_hand_score must be in [0, 1], got {self.min_hand_score}")
         if self.hand_radius_m <= 0 or self.num_points <= 0:
             raise HandConversionError("hand_radius_m and num_points must be positive")
+        if self.window_frames < 1 or self.window_frames % 2 == 0:
+            raise HandConversionError(f"window_frames must be an odd number >= 1 (1: off), got {self.window_frames}")
         if self.hand_mask_dilate_px < 0:
             raise HandConversionError(f"hand_mask_dilate_px must be non-negative, got {self.hand_mask_dilate_px}")
 
@@ -111,7 +114,7 @@ def map_recording(recording: HandRecording, settings: HandConvertSettings) -> Ha
         if settings.hand is not None:
             valid &= recording.handedness == settings.hand
     try:
-        trajectory = map_hand_to_gripper(landmarks_world, settings.mapping, valid)
+        trajectory = map_hand_to_gripper(landmarks_world, settings.mapping, valid, settings.window_frames)
     except HandGapError as error:
         raise HandGapError(f"{recording.name}: {error}") from error
     return HandEpisode(recording, landmarks_world, trajectory)

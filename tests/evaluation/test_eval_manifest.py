@@ -59,7 +59,7 @@ def fake_suite(monkeypatch):
 
     def fake_record(settings, task, demos, seed, source):
         (demos / "data").mkdir(parents=True)
-        (demos / "data" / "file.parquet").write_text(f"{source} {seed}")
+        (demos / "data" / "file.parquet").write_text(f"{source} {seed} {settings.demonstrator}")
         (demos / "meta").mkdir()
         (demos / "meta" / "info.json").write_text("{}")
 
@@ -189,6 +189,24 @@ def test_table_joins_same_seeds_and_sets_and_refuses_others(fake_suite, tmp_path
                        {("push_button", 0): [True, True]}, tasks=["push_button"])
     assert eval_table([f"demo_replay={replay}", f"fewer={fewer}", "--out", str(out)]) == 2
     assert "hold different cells (task, set): [('open_drawer', 0)]" in capsys.readouterr().err
+
+
+def test_a_hands_demonstrations_are_another_source_than_the_grippers(fake_suite, tmp_path, capsys):
+    """A column reading the hand's demonstrations of the same seeds pairs with the gripper's (what the hand costs);
+    two hand columns of other demonstration sets are still refused."""
+    gripper = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1), two_cells([True, True], [True, False]))
+    hand = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, demonstrator="hand", run_name="hand"),
+                      two_cells([True, False], [False, False]))
+    out = tmp_path / "table"
+    assert eval_table([f"demo_replay={gripper}", f"hand={hand}", "--out", str(out), "--paired", "hand=demo_replay"]) == 0
+    assert "hand - demo_replay: -50.0 points" in capsys.readouterr().out
+    manifests = json.loads(out.with_suffix(".manifest.json").read_text())
+    assert {cell["demonstrator"] for cell in manifests["hand"]["cells"]} == {"hand"}
+    assert {cell["demonstrator"] for cell in manifests["demo_replay"]["cells"]} == {"gripper"}
+    other = fake_suite(SuiteSettings(out=tmp_path / "other", episodes=2, demo_sets=1, demo_seed=500,
+                                     demonstrator="hand", run_name="hand"), two_cells([True, True], [True, True]))
+    assert eval_table([f"hand={hand}", f"other={other}", "--out", str(out)]) == 2
+    assert "different demonstration sets" in capsys.readouterr().err
 
 
 # Per condition: the settings of a column that differs from the base one in it (and in those named beside it).
