@@ -186,7 +186,8 @@ def map_hand_to_gripper(
     recording allows and a live stream cannot. Landmark noise of σ per coordinate gives the thumb-index axis an angular error of
     about √2·σ / aperture per frame (15-20° at σ = 1 cm and a 5-8 cm pinch) and the aperture a noise of √2·σ, enough
     to cross the hysteresis band; the mean over w frames divides both by up to √w, at the cost of blurring motion
-    faster than w frames. A run of at most ``max_gap_frames`` missing frames is bridged: between two found frames the
+    faster than w frames, above all at the turning points where the hand touches things (the mean of the frames
+    around the lowest point of a push lies above it). A run of at most ``max_gap_frames`` missing frames is bridged: between two found frames the
     position is interpolated linearly and the rotation by SLERP; before the first / after the last found frame the
     nearest found pose is held. The gripper state is held through a gap. A longer run raises ``HandGapError`` naming
     its frames (trim the recording to where the hand is in view). Hysteresis and smoothing then run forward in time,

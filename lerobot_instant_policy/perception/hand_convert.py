@@ -67,7 +67,7 @@ class HandConvertSettings:
     out: Path
     repo_id: str
     mapping: HandMappingConfig = field(default_factory=HandMappingConfig)
-    window_frames: int = 5
+    window_frames: int = 1
     num_points: int = 2048
     hand_radius_m: float = 0.015
     hand_mask_dilate_px: int = 2

@@ -212,10 +212,7 @@ def test_conversion_gives_the_gripper_and_clouds_without_the_hand(scene, tmp_pat
     save_hand_recording(recording, tmp_path / "recordings" / "episode_000")
     save_hand_recording(recording, tmp_path / "recordings" / "episode_001")
     out = tmp_path / "converted"
-    # window_frames=1: each frame's landmarks as recorded, so the gripper is the exact one (the default window of 5
-    # averages the noise of a detector away, test_hand.py)
-    summary = convert_hand_recordings(HandConvertSettings(tmp_path / "recordings", out, "local/hand", num_points=256,
-                                                          window_frames=1))
+    summary = convert_hand_recordings(HandConvertSettings(tmp_path / "recordings", out, "local/hand", num_points=256))
     assert summary["episodes"] == 2 and summary["frames"] == 2 * len(HEIGHTS) and summary["bridged_frames"] == [[], []]
     demonstrations = load_demonstrations("local/hand", out, "pick up the cube", 2)
     gripper_open = np.array(APERTURES) > 0.05
@@ -260,7 +257,7 @@ def test_image_landmarks_convert_with_missing_frames_bridged_and_marked(scene, t
     save_hand_recording(image, tmp_path / "image")
     out = tmp_path / "converted"
     assert main(["--recordings", str(tmp_path / "image"), "--out", str(out), "--repo-id", "local/image",
-                 "--num-points", "128", "--hand", "Right", "--window-frames", "1"]) == 0  # 8 frames 5 cm apart
+                 "--num-points", "128", "--hand", "Right"]) == 0
     bridged = json.loads((out / "meta" / HAND_FRAMES_FILE).read_text())["episodes"][0]["bridged_frames"]
     assert bridged == [3, 6]
     (demonstration,) = load_demonstrations("local/image", out, "pick up the cube", 1)
