@@ -45,7 +45,7 @@ pseudo-demos: $(INSTALLED)
 
 # The default model (InstantPolicyConfig's defaults: the shipped model) on the default pseudo-demonstrations, 2 CPU
 # cores. The shipped checkpoint itself comes from: make ladder RUNG=2sb; make ladder RUNG=4sb FROM=2sb, continued by
-# make campaign. Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
+# the standing run on the pseudo-task stream (python -m workbench.cli.standing run, docs/training.md) to step 93,000. Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
 TRAIN_DIR ?= outputs/train/instant_policy_small
 TRAIN_STEPS ?= 2000
 train-data: $(INSTALLED)
