@@ -183,7 +183,8 @@ def cells_of(manifest: dict) -> dict[tuple[str, int], CellOutcome]:
     """A manifest's cells by ``(task, demo_set)`` (a field a manifest lacks takes its default: unknown)."""
     fields = CellOutcome.__dataclass_fields__
     demonstrator = manifest["settings"].get("demonstrator", "gripper")
-    cells = [CellOutcome(**{"demonstrator": demonstrator, **{key: value for key, value in cell.items() if key in fields},
+    cells = [CellOutcome(**{"demonstrator": demonstrator,
+                            **{key: value for key, value in cell.items() if key in fields},
                             "eval_seeds": tuple(cell["eval_seeds"]), "successes": tuple(cell["successes"])})
              for cell in manifest["cells"]]
     return {cell.key: cell for cell in cells}

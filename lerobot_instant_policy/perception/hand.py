@@ -183,15 +183,15 @@ def map_hand_to_gripper(
 
     With ``window_frames`` w > 1 (odd), each landmark of a valid frame is first replaced by its mean over the valid
     frames among the w centred on it that see it (:func:`centred_landmark_mean`): zero-phase smoothing, which a
-    recording allows and a live stream cannot. Landmark noise of σ per coordinate gives the thumb-index axis an angular error of
-    about √2·σ / aperture per frame (15-20° at σ = 1 cm and a 5-8 cm pinch) and the aperture a noise of √2·σ, enough
-    to cross the hysteresis band; the mean over w frames divides both by up to √w, at the cost of blurring motion
-    faster than w frames, above all at the turning points where the hand touches things (the mean of the frames
-    around the lowest point of a push lies above it). A run of at most ``max_gap_frames`` missing frames is bridged: between two found frames the
-    position is interpolated linearly and the rotation by SLERP; before the first / after the last found frame the
-    nearest found pose is held. The gripper state is held through a gap. A longer run raises ``HandGapError`` naming
-    its frames (trim the recording to where the hand is in view). Hysteresis and smoothing then run forward in time,
-    as they do live.
+    recording allows and a live stream cannot. Landmark noise of σ per coordinate gives the thumb-index axis an
+    angular error of about √2·σ / aperture per frame (15-20° at σ = 1 cm and a 5-8 cm pinch) and the aperture a noise
+    of √2·σ, enough to cross the hysteresis band; the mean over w frames divides both by up to √w, at the cost of
+    blurring motion faster than w frames, above all at the turning points where the hand touches things (the mean of
+    the frames around the lowest point of a push lies above it). A run of at most ``max_gap_frames`` missing frames
+    is bridged: between two found frames the position is interpolated linearly and the rotation by SLERP; before the
+    first / after the last found frame the nearest found pose is held. The gripper state is held through a gap. A
+    longer run raises ``HandGapError`` naming its frames (trim the recording to where the hand is in view).
+    Hysteresis and smoothing then run forward in time, as they do live.
     """
     config = config or HandMappingConfig()
     landmarks_world = checked_landmarks(landmarks_world, 3, "(T, 21, 3)")

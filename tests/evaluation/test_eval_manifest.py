@@ -198,7 +198,8 @@ def test_a_hands_demonstrations_are_another_source_than_the_grippers(fake_suite,
     hand = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, demonstrator="hand", run_name="hand"),
                       two_cells([True, False], [False, False]))
     out = tmp_path / "table"
-    assert eval_table([f"demo_replay={gripper}", f"hand={hand}", "--out", str(out), "--paired", "hand=demo_replay"]) == 0
+    paired = ["--paired", "hand=demo_replay"]
+    assert eval_table([f"demo_replay={gripper}", f"hand={hand}", "--out", str(out), *paired]) == 0
     assert "hand - demo_replay: -50.0 points" in capsys.readouterr().out
     manifests = json.loads(out.with_suffix(".manifest.json").read_text())
     assert {cell["demonstrator"] for cell in manifests["hand"]["cells"]} == {"hand"}
