@@ -59,11 +59,7 @@ class GateDecision:
 
 
 def _columns(path: Path, candidate: str, shipped: str) -> tuple[dict[tuple[str, int], CellOutcome], ...]:
-    manifests = read_manifest_file(path)
-    for column in (candidate, shipped):
-        if column not in manifests:
-            raise ManifestError(f"{path} has no column {column!r} (it holds {', '.join(manifests)})")
-    return cells_of(manifests[candidate]), cells_of(manifests[shipped])
+    return tuple(cells_of(read_manifest_file(path, column)[column]) for column in (candidate, shipped))
 
 
 def ship_gate(candidate: str, shipped: str, tables: list[Path], resamples: int = RESAMPLES,
