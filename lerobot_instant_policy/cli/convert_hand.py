@@ -40,11 +40,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="gripper closes when the thumb-index tip distance falls below this (m)")
     parser.add_argument("--open-above", type=float, default=defaults.open_above_m,
                         help="gripper opens again above this (m)")
+    parser.add_argument("--gripper-hold-frames", type=int, default=defaults.gripper_hold_frames,
+                        help="frames in a row the aperture must call for a gripper change before it changes (1: off)")
     parser.add_argument("--max-gap-frames", type=int, default=defaults.max_gap_frames,
                         help="longest run of frames without a hand that is bridged (longer: an error)")
     parser.add_argument("--ee-offset", type=_floats, default=defaults.ee_offset_m, help="x,y,z (m, EE frame)")
     parser.add_argument("--window-frames", type=int, default=HandConvertSettings.window_frames,
                         help="landmarks averaged over this many frames centred on each (odd; 1: off) before mapping")
+    parser.add_argument("--aperture-window-frames", type=int, default=HandConvertSettings.aperture_window_frames,
+                        help="the gripper state reads the median aperture of this many frames centred on each (odd)")
     parser.add_argument("--position-smoothing", type=float, default=defaults.position_smoothing)
     parser.add_argument("--rotation-smoothing", type=float, default=defaults.rotation_smoothing)
     parser.add_argument("--hand", choices=("Left", "Right"), help="only frames of this hand count (default: either)")
@@ -79,11 +83,11 @@ def main(argv: list[str] | None = None) -> int:
         mapping = HandMappingConfig(
             close_below_m=args.close_below, open_above_m=args.open_above, max_gap_frames=args.max_gap_frames,
             ee_offset_m=args.ee_offset, position_smoothing=args.position_smoothing,
-            rotation_smoothing=args.rotation_smoothing,
+            rotation_smoothing=args.rotation_smoothing, gripper_hold_frames=args.gripper_hold_frames,
         )
         summary = convert_hand_recordings(HandConvertSettings(
             recordings=args.recordings, out=args.out, repo_id=args.repo_id, mapping=mapping,
-            window_frames=args.window_frames,
+            window_frames=args.window_frames, aperture_window_frames=args.aperture_window_frames,
             num_points=args.num_points, hand_radius_m=args.hand_radius,
             hand_mask_dilate_px=args.hand_mask_dilate, min_hand_score=args.min_hand_score,
             hand=args.hand, workspace_low=args.workspace_low, workspace_high=args.workspace_high,

@@ -16,8 +16,9 @@ frame (:func:`ee_poses_from_landmarks`):
 A frame is *missing* when a landmark it needs is NaN, when it is marked invalid, or when it is degenerate (the tips
 closer than ``min_aperture_m``, so y is undefined, or the palm point within ``min_palm_offset_m`` of the thumb-index
 axis, so z is undefined): no pose is computed from it. The gripper closes when the aperture |thumb tip − index tip|
-falls below ``close_below_m`` and opens again above ``open_above_m`` (hysteresis); it starts open. A recorded episode
-goes through :func:`map_hand_to_gripper`; a live stream through ``HandToGripperStateStep``. The hand is removed from
+falls below ``close_below_m`` and opens again above ``open_above_m`` (hysteresis), once the aperture has called for
+the change on ``gripper_hold_frames`` found frames in a row (debounce); it starts open. A recorded episode goes
+through :func:`map_hand_to_gripper`; a live stream through ``HandToGripperStateStep``. The hand is removed from
 the segmented clouds by ``perception.hand_mask``; hand landmarks seen in an image are lifted to the world frame with
 depth by :func:`lift_image_landmarks`.
 """
@@ -62,6 +63,10 @@ class HandMappingConfig:
     1 cm back into the fingers).
     ``position_smoothing`` / ``rotation_smoothing``: the weight in [0, 1) of the previous filtered position / rotation
     in a causal exponential filter (rotation by SLERP); 0 turns it off, 0.5 halves the noise at a lag of one frame.
+    ``gripper_hold_frames``: how many found frames in a row the aperture must call for a state change before the
+    gripper changes (1: at once). Live the change then comes ``gripper_hold_frames - 1`` frames late; a recording
+    dates it back (:func:`map_hand_to_gripper`). A single noisy frame crossing the band no longer opens a carrying
+    pinch or closes a hand mid-air.
     ``max_gap_frames``: the most consecutive missing frames bridged (see :func:`map_hand_to_gripper`); a longer gap
     raises ``HandGapError``.
     ``min_aperture_m`` / ``min_palm_offset_m``: below these a frame is degenerate (missing).
@@ -73,6 +78,7 @@ class HandMappingConfig:
     ee_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     position_smoothing: float = 0.0
     rotation_smoothing: float = 0.0
+    gripper_hold_frames: int = 2
     max_gap_frames: int = 3
     min_aperture_m: float = 0.002
     min_palm_offset_m: float = 0.01
@@ -94,6 +100,8 @@ class HandMappingConfig:
         for name in ("position_smoothing", "rotation_smoothing"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"{name} must be in [0, 1) (0 = off), got {getattr(self, name)}")
+        if self.gripper_hold_frames < 1 or int(self.gripper_hold_frames) != self.gripper_hold_frames:
+            raise ValueError(f"gripper_hold_frames must be an integer >= 1 (1: off), got {self.gripper_hold_frames}")
         if self.max_gap_frames < 0 or int(self.max_gap_frames) != self.max_gap_frames:
             raise ValueError(f"max_gap_frames must be an integer >= 0, got {self.max_gap_frames}")
         if self.min_palm_offset_m <= 0:
@@ -135,20 +143,24 @@ def ee_poses_from_landmarks(landmarks_world: np.ndarray, config: HandMappingConf
 
 
 class _HandFilter:
-    """One stream's gripper hysteresis and pose smoothing (causal: each output depends on the frames so far)."""
+    """One stream's gripper hysteresis with its debounce, and pose smoothing (causal: each output depends on the
+    frames so far)."""
 
     def __init__(self, config: HandMappingConfig):
         self.config = config
         self.T_world_ee: np.ndarray | None = None
         self.gripper_open = 1.0
+        self.calls_for_change = 0  # found frames in a row whose aperture calls for the other state
 
     def update(self, T_measured: np.ndarray, aperture: float) -> tuple[np.ndarray, float]:
         """The filtered ``T_world_ee (4, 4)`` and gripper after ``T_measured (4, 4)`` and ``aperture`` (NaN: not
-        measured, the gripper state is held)."""
-        if aperture < self.config.close_below_m:
-            self.gripper_open = 0.0
-        elif aperture > self.config.open_above_m:
-            self.gripper_open = 1.0
+        measured: the gripper state and the debounce's count are held)."""
+        if np.isfinite(aperture):
+            called = 0.0 if aperture < self.config.close_below_m else 1.0 if aperture > self.config.open_above_m \
+                else self.gripper_open
+            self.calls_for_change = self.calls_for_change + 1 if called != self.gripper_open else 0
+            if self.calls_for_change >= self.config.gripper_hold_frames:
+                self.gripper_open, self.calls_for_change = called, 0
         if self.T_world_ee is None:
             self.T_world_ee = T_measured.copy()
         else:
@@ -176,7 +188,7 @@ class HandTrajectory:
 
 def map_hand_to_gripper(
     landmarks_world, config: HandMappingConfig | None = None, valid: np.ndarray | None = None,
-    window_frames: int = 1,
+    window_frames: int = 1, aperture_window_frames: int = 1,
 ) -> HandTrajectory:
     """A recorded episode's ``landmarks_world (T, 21, 3)`` (``valid (T,)`` bool: False marks a frame missing) → its
     :class:`HandTrajectory`.
@@ -187,11 +199,18 @@ def map_hand_to_gripper(
     angular error of about √2·σ / aperture per frame (15-20° at σ = 1 cm and a 5-8 cm pinch) and the aperture a noise
     of √2·σ, enough to cross the hysteresis band; the mean over w frames divides both by up to √w, at the cost of
     blurring motion faster than w frames, above all at the turning points where the hand touches things (the mean of
-    the frames around the lowest point of a push lies above it). A run of at most ``max_gap_frames`` missing frames
+    the frames around the lowest point of a push lies above it). With ``aperture_window_frames`` a > 1 (odd), the
+    thumb-index aperture that sets the gripper state is then the median of the found frames' among the a centred on
+    each (:func:`centred_median`), the poses left as they are: the median keeps a steady close or release where it is
+    (on a monotone run the centre is the median) and ignores a noisy frame or two. A run of at most ``max_gap_frames`` missing frames
     is bridged: between two found frames the position is interpolated linearly and the rotation by SLERP; before the
     first / after the last found frame the nearest found pose is held. The gripper state is held through a gap. A
     longer run raises ``HandGapError`` naming its frames (trim the recording to where the hand is in view).
-    Hysteresis and smoothing then run forward in time, as they do live.
+    Hysteresis, its debounce and smoothing then run forward in time, as they do live; then, as a recording allows,
+    each gripper change is dated back to the frame after the aperture last read the old state (above
+    ``open_above_m`` before a close, below ``close_below_m`` before an open), never before the previous change: a
+    pinch changes when the fingers start to move, not when the aperture has crossed the band and held there
+    (:func:`date_gripper_changes_back`).
     """
     config = config or HandMappingConfig()
     landmarks_world = checked_landmarks(landmarks_world, 3, "(T, 21, 3)")
@@ -205,12 +224,44 @@ def map_hand_to_gripper(
     T_measured, aperture, found = ee_poses_from_landmarks(landmarks_world, config)
     found &= valid
     aperture = np.where(found, aperture, np.nan)
+    if aperture_window_frames != 1:
+        aperture = np.where(found, centred_median(aperture, aperture_window_frames), np.nan)
     if not found.any():
         raise HandGapError(f"no frame of the {len(found)} has a usable hand (missing, NaN or degenerate landmarks)")
     _bridge_gaps(T_measured, found, config.max_gap_frames)
     hand_filter = _HandFilter(config)
     filtered = [hand_filter.update(T_frame, width) for T_frame, width in zip(T_measured, aperture, strict=True)]
-    return HandTrajectory(np.stack([T for T, _ in filtered]), np.array([g for _, g in filtered]), found)
+    gripper_open = date_gripper_changes_back(np.array([g for _, g in filtered]), aperture, config)
+    return HandTrajectory(np.stack([T for T, _ in filtered]), gripper_open, found)
+
+
+def date_gripper_changes_back(gripper_open: np.ndarray, aperture: np.ndarray, config: HandMappingConfig) -> np.ndarray:
+    """``gripper_open (T,)`` (the causal states of a recording) with each change moved back to the frame after the
+    last one whose ``aperture (T,)`` m (NaN: missing) read the old state, and no earlier than the frame after the
+    previous change."""
+    gripper_open = gripper_open.copy()
+    with np.errstate(invalid="ignore"):
+        reads_closed, reads_open = aperture < config.close_below_m, aperture > config.open_above_m
+    previous = 0
+    for change in np.flatnonzero(np.diff(gripper_open)) + 1:
+        reads_old = reads_open if gripper_open[change] == 0.0 else reads_closed
+        last_old = np.flatnonzero(reads_old[previous:change])
+        start = previous + (last_old[-1] + 1 if len(last_old) else 0)
+        gripper_open[start:change] = gripper_open[change]
+        previous = change
+    return gripper_open
+
+
+def centred_median(values: np.ndarray, window_frames: int) -> np.ndarray:
+    """``values (T,)`` with each replaced by the median of the finite ones among the ``window_frames`` (odd, positive)
+    centred on it (fewer at the ends; NaN where none is finite)."""
+    if window_frames < 1 or window_frames % 2 == 0:
+        raise ValueError(f"window_frames must be an odd number >= 1 (1: off), got {window_frames}")
+    half = window_frames // 2
+    padded = np.concatenate([np.full(half, np.nan), values, np.full(half, np.nan)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN window: NaN
+        return np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, window_frames), axis=-1)
 
 
 def centred_landmark_mean(landmarks_world: np.ndarray, valid: np.ndarray, window_frames: int) -> np.ndarray:

@@ -68,6 +68,7 @@ class HandConvertSettings:
     repo_id: str
     mapping: HandMappingConfig = field(default_factory=HandMappingConfig)
     window_frames: int = 1
+    aperture_window_frames: int = 5
     num_points: int = 2048
     hand_radius_m: float = 0.015
     hand_mask_dilate_px: int = 2
@@ -85,8 +86,9 @@ class HandConvertSettings:
             raise HandConversionError(f"min_hand_score must be in [0, 1], got {self.min_hand_score}")
         if self.hand_radius_m <= 0 or self.num_points <= 0:
             raise HandConversionError("hand_radius_m and num_points must be positive")
-        if self.window_frames < 1 or self.window_frames % 2 == 0:
-            raise HandConversionError(f"window_frames must be an odd number >= 1 (1: off), got {self.window_frames}")
+        for name in ("window_frames", "aperture_window_frames"):
+            if getattr(self, name) < 1 or getattr(self, name) % 2 == 0:
+                raise HandConversionError(f"{name} must be an odd number >= 1 (1: off), got {getattr(self, name)}")
         if self.hand_mask_dilate_px < 0:
             raise HandConversionError(f"hand_mask_dilate_px must be non-negative, got {self.hand_mask_dilate_px}")
 
@@ -114,7 +116,8 @@ def map_recording(recording: HandRecording, settings: HandConvertSettings) -> Ha
         if settings.hand is not None:
             valid &= recording.handedness == settings.hand
     try:
-        trajectory = map_hand_to_gripper(landmarks_world, settings.mapping, valid, settings.window_frames)
+        trajectory = map_hand_to_gripper(landmarks_world, settings.mapping, valid, settings.window_frames,
+                                         settings.aperture_window_frames)
     except HandGapError as error:
         raise HandGapError(f"{recording.name}: {error}") from error
     return HandEpisode(recording, landmarks_world, trajectory)

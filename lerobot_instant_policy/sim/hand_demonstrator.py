@@ -22,7 +22,10 @@ intrinsics and pose (the env's cameras at ``depth_resolution``), the hand's 21 l
 detector-like Gaussian noise (``landmark_noise_m`` per coordinate) and whole frames dropped with probability
 ``drop_probability`` (NaN), and (``record_hand_mask``) the hand's pixels from the cameras' segmentation, where the
 hand has its own body id: what a segmenting detector would give. A demonstration ends at its first step in the
-task's goal state, as the gripper's do (``sim.recording``).
+task's goal state as a person's does: ``after_goal_frames`` frames after it, still following the script, and when
+the hand is letting go there, not before the pinch has been open that many frames. A recording holds no command,
+only where the hand was, so one cut at the goal would end a step short of it (a converted episode's last action is
+its last state) and never show the release the robot's gripper state shows at once.
 """
 
 from __future__ import annotations
@@ -44,11 +47,13 @@ from .hand_model import MAX_APERTURE, MIN_APERTURE, SimulatedHand
 
 DEMONSTRATORS = ("gripper", "hand")  # who demonstrates: the scripted robot gripper, or the simulated person's hand
 JITTER_FADE_M = 0.08
+AFTER_GOAL_STEPS_MAX = 10  # control steps a demonstration may go on past the task's limit after its goal
 PINCH_INNER_MARGIN_M = 0.004  # a contact counts as a pinch this far inside the tips (half a fingertip's radius)
 PARKED_ROBOT_POSITION = (0.0, 0.0, -5.0)
 # The mapping for this hand: the thumb and index tip landmarks sit a capsule radius inside the fingertips, so a pinch
 # on the suite's 4 cm blocks reads about 5.7 cm, a thin handle 3.7 cm, touching tips 1.8 cm; an open hand 8.5-11.5 cm.
-SIM_HAND_MAPPING = HandMappingConfig(close_below_m=0.065, open_above_m=0.08)
+# The band between the thresholds sits between the two, 2 debounce frames (workbench.hand_window).
+SIM_HAND_MAPPING = HandMappingConfig(close_below_m=0.07, open_above_m=0.083, gripper_hold_frames=2)
 
 
 @dataclass(frozen=True)
@@ -62,6 +67,7 @@ class HandDemonstratorConfig:
     aperture_wobble_m: float = 0.005
     closing_speed_m_s: float = 0.15
     carry_force_n: float = 200.0
+    after_goal_frames: int = 3
     record_hand_mask: bool = True
 
     def __post_init__(self):
@@ -76,19 +82,23 @@ class HandDemonstratorConfig:
                              f"{MAX_APERTURE}] m, got {self.open_aperture_m} ± {self.aperture_wobble_m}")
         if self.closing_speed_m_s <= 0 or self.carry_force_n <= 0:
             raise ValueError("closing_speed_m_s and carry_force_n must be positive")
+        if self.after_goal_frames < 0:
+            raise ValueError(f"after_goal_frames must be non-negative, got {self.after_goal_frames}")
 
 
 @dataclass(frozen=True)
 class HandDemonstration:
     """One demonstration by the simulated hand: its ``recording`` (``perception.hand_recording``, world landmarks
     with the configured noise), whether it reached the goal (``success``), its ``seed``, and per recorded frame the
-    hand's true EE frame ``T_world_ee (T, 4, 4)`` and thumb-index ``aperture (T,)`` m."""
+    hand's true EE frame ``T_world_ee (T, 4, 4)``, thumb-index ``aperture (T,)`` m, and ``pinch_open (T,)`` bool: the
+    script's gripper command the hand follows from that frame (what the robot's gripper does in its demonstration)."""
 
     recording: HandRecording
     success: bool
     seed: int
     T_world_ee: np.ndarray
     aperture: np.ndarray
+    pinch_open: np.ndarray
 
 
 def hand_path(plan: np.ndarray, T_world_start: np.ndarray, waypoints: np.ndarray, jitter_m: float,
@@ -190,14 +200,15 @@ def perform_hand_demonstration(env: BulletTabletopEnv, seed: int, config: HandDe
     views = [camera_view_matrix(camera) for camera in env.config.cameras]
     T_hand, aperture, carry = T_world_start, open_aperture, None
     hand.set_pose(T_hand, aperture)
-    frames = dict(rgb=[], depth=[], hand_mask=[], landmarks=[], T_world_ee=[], aperture=[])
-    success = False
-    for step in range(env.task_impl.max_episode_steps):
+    frames = dict(rgb=[], depth=[], hand_mask=[], landmarks=[], T_world_ee=[], aperture=[], pinch_open=[])
+    success, frames_open, frames_after_goal = False, 0, 0
+    for step in range(env.task_impl.max_episode_steps + AFTER_GOAL_STEPS_MAX):
         rgb, depth, hand_mask = _render(env, views, hand.body)
         for key, value in (("rgb", rgb), ("depth", depth), ("hand_mask", hand_mask), ("landmarks", hand.landmarks()),
                            ("T_world_ee", T_hand), ("aperture", hand.aperture)):
             frames[key].append(value)
         target, close = targets[min(step, len(targets) - 1)], not pinch_open[min(step, len(targets) - 1)]
+        frames["pinch_open"].append(not close)
         rotations = slerp_rotations(T_hand[:3, :3], target[:3, :3], np.arange(1, substeps + 1) / substeps)
         wanted = open_aperture + config.aperture_wobble_m * np.sin(2 * np.pi * step / (wobble_period * env.config.fps)
                                                                    + wobble_phase)
@@ -221,8 +232,12 @@ def perform_hand_demonstration(env: BulletTabletopEnv, seed: int, config: HandDe
                 carry.follow(T_substep)
             pybullet.stepSimulation(physicsClientId=env.client)
         T_hand = make_pose(target[:3, 3], target[:3, :3])
-        if env.task_impl.is_success(env.scene):
-            success = True
+        frames_open = frames_open + 1 if not close and aperture >= wanted else 0
+        success = success or env.task_impl.is_success(env.scene)
+        frames_after_goal += success
+        let_go = close or frames_open > config.after_goal_frames or frames_open == step + 1
+        if frames_after_goal > config.after_goal_frames and let_go or not success and \
+                step + 1 >= env.task_impl.max_episode_steps:
             break
     landmarks = np.stack(frames["landmarks"])
     landmarks = landmarks + rng.normal(0.0, config.landmark_noise_m, landmarks.shape)
@@ -237,7 +252,8 @@ def perform_hand_demonstration(env: BulletTabletopEnv, seed: int, config: HandDe
         hand_mask=np.stack(frames["hand_mask"]) if config.record_hand_mask else None,
         name=f"{env.task} seed {seed} (simulated hand)",
     )
-    return HandDemonstration(recording, success, seed, np.stack(frames["T_world_ee"]), np.array(frames["aperture"]))
+    return HandDemonstration(recording, success, seed, np.stack(frames["T_world_ee"]), np.array(frames["aperture"]),
+                             np.array(frames["pinch_open"]))
 
 
 def record_hand_demonstrations(

@@ -49,6 +49,8 @@ def test_config_rejects_bad_values():
         HandMappingConfig(position_smoothing=1.0)
     with pytest.raises(ValueError, match="max_gap_frames"):
         HandMappingConfig(max_gap_frames=-1)
+    with pytest.raises(ValueError, match="gripper_hold_frames"):
+        HandMappingConfig(gripper_hold_frames=0)
 
 
 def test_round_trip_recovers_the_gripper_pose_and_is_proper():
@@ -85,7 +87,7 @@ def test_a_centred_window_divides_the_landmark_noise():
     assert pose_distance(mapped[:1], sweep[:1])[0][0] > 1e-3  # fewer frames at the ends: the mean leans inwards
 
     T_world_ee = smooth_poses(120)
-    config = HandMappingConfig(close_below_m=0.055, open_above_m=0.065)
+    config = HandMappingConfig(close_below_m=0.055, open_above_m=0.065, gripper_hold_frames=1)
     noisy = landmarks_from_gripper(T_world_ee, 0.075, np.random.default_rng(4), noise_m=0.01)
     errors, changes = {}, {}
     for window in (1, 5):
@@ -121,13 +123,55 @@ def test_the_mapping_is_se3_equivariant():
 
 
 def test_gripper_hysteresis_does_not_chatter_near_a_threshold():
-    config = HandMappingConfig(close_below_m=0.035, open_above_m=0.05)
+    config = HandMappingConfig(close_below_m=0.035, open_above_m=0.05, gripper_hold_frames=1)
     hovering = 0.035 + 0.004 * np.sin(np.arange(30))  # across close_below_m, never above open_above_m
     apertures = np.concatenate([[0.08], hovering, [0.06, 0.045, 0.02, 0.045, 0.06]])
     gripper = map_hand_to_gripper(landmarks_from_gripper(smooth_poses(len(apertures)), apertures), config).gripper_open
-    assert gripper[0] == 1 and (gripper[1:31] == 0).sum() > 0
+    assert gripper[0] == 1
     assert np.count_nonzero(np.diff(gripper[:31])) == 1  # closed once on the first dip, then stays closed
-    np.testing.assert_array_equal(gripper[31:], [1, 1, 0, 0, 1])  # opens above 5 cm, closes below 3.5 cm
+    # opens above 5 cm, closes below 3.5 cm, each change dated to the frame after the aperture last read the old state
+    assert np.all(gripper[1:31] == 0)  # closed from the first frame the aperture left the open side
+    np.testing.assert_array_equal(gripper[31:], [1, 0, 0, 1, 1])
+
+
+def test_debounce_ignores_blips_and_dates_a_recorded_change_to_its_first_frame():
+    config = HandMappingConfig(close_below_m=0.035, open_above_m=0.05, gripper_hold_frames=3)
+    open_, closed = 0.08, 0.02
+    #            0      1      2       3       4      5       6       7       8      9      10      11     12      13
+    apertures = [open_, open_, closed, closed, open_, closed, closed, closed, closed, open_, closed, open_, closed, open_]
+    landmarks = landmarks_from_gripper(smooth_poses(len(apertures)), np.array(apertures))
+    gripper = map_hand_to_gripper(landmarks, config).gripper_open
+    # two closed frames (2-3) and the open blips (9, 11, 13) change nothing; the run of closes from frame 5 does, from 5
+    np.testing.assert_array_equal(gripper, [1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    landmarks[6] = np.nan  # a missing frame neither breaks the run nor counts in it
+    np.testing.assert_array_equal(map_hand_to_gripper(landmarks, config).gripper_open[4:9], [1, 0, 0, 0, 0])
+    undebounced = map_hand_to_gripper(landmarks, HandMappingConfig(close_below_m=0.035, open_above_m=0.05,
+                                                                   gripper_hold_frames=1))
+    assert np.count_nonzero(np.diff(undebounced.gripper_open)) > 1
+
+
+def test_debounce_live_changes_late_by_the_hold_less_one():
+    T_world_ee = smooth_poses(1)
+    step = HandToGripperStateStep(HandMappingConfig(close_below_m=0.035, open_above_m=0.05, gripper_hold_frames=3))
+    states = [step.observation({HAND_LANDMARKS_KEY: torch.from_numpy(
+        landmarks_from_gripper(T_world_ee, aperture).astype(np.float32))})[STATE_KEY][0, 7].item()
+        for aperture in (0.08, 0.02, 0.02, 0.02, 0.02, 0.08, 0.02)]
+    assert states == [1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0]
+
+
+def test_an_aperture_median_ignores_one_noisy_frame_and_keeps_a_steady_close_in_place():
+    apertures = np.where(np.arange(20) < 10, 0.08, 0.02)
+    apertures[[3, 15]] = 0.02, 0.08  # one frame each read the other state
+    config = HandMappingConfig(close_below_m=0.035, open_above_m=0.055, gripper_hold_frames=1)
+    landmarks = landmarks_from_gripper(smooth_poses(20), apertures)
+    landmarks[12] = np.nan
+    raw = map_hand_to_gripper(landmarks, config)
+    median = map_hand_to_gripper(landmarks, config, aperture_window_frames=5)
+    assert np.count_nonzero(np.diff(raw.gripper_open)) == 5  # the close, and each spike there and back
+    np.testing.assert_array_equal(median.gripper_open, (np.arange(20) < 10).astype(float))
+    np.testing.assert_array_equal(median.T_world_ee, raw.T_world_ee)  # the poses are not smoothed
+    with pytest.raises(ValueError, match="odd"):
+        map_hand_to_gripper(landmarks, config, aperture_window_frames=4)
 
 
 def test_nan_frames_are_marked_and_bridged_without_a_jump():
@@ -233,7 +277,7 @@ def test_mask_steps_clear_the_cloud_mask():
 
 def test_processor_step_keeps_state_across_calls_and_resets():
     T_world_ee = smooth_poses(2)
-    step = HandToGripperStateStep(HandMappingConfig(max_gap_frames=1))
+    step = HandToGripperStateStep(HandMappingConfig(max_gap_frames=1, gripper_hold_frames=1))
 
     def call(aperture: float, pose: int = 0) -> dict:
         landmarks = torch.from_numpy(landmarks_from_gripper(T_world_ee[[pose, pose]], aperture).astype(np.float32))

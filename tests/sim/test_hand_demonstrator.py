@@ -12,6 +12,7 @@ from lerobot_instant_policy.contract import poses_from_vectors
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
 from lerobot_instant_policy.geometry.se3 import pose_distance
 from lerobot_instant_policy.perception.hand import map_hand_to_gripper
+from lerobot_instant_policy.perception.hand_convert import HandConvertSettings
 from lerobot_instant_policy.perception.hand_mask import mask_hand_points
 from lerobot_instant_policy.perception.hand_recording import find_hand_recordings, load_hand_recording
 from lerobot_instant_policy.sim.demonstrator import top_down_pose
@@ -78,6 +79,40 @@ def test_landmarks_map_back_to_the_scripted_gripper_within_5_mm_and_3_degrees(ex
 def test_the_hand_lifts_the_block(exact_demonstration):
     demonstration, block_height, _ = exact_demonstration
     assert demonstration.success and block_height > 0.12  # from 0.02 m on the table
+
+
+def test_the_robot_replaying_the_mapped_hand_lifts_the_block(exact_demonstration):
+    """The mapped demonstration, its actions the next frames' states (the last held), replayed open loop by the robot
+    on the same scene, meets pick_and_lift's held success: the recording goes on past the goal, so its last state
+    is past it too."""
+    demonstration, _, _ = exact_demonstration
+    states = map_hand_to_gripper(demonstration.recording.landmarks_world, SIM_HAND_MAPPING).state_vectors()
+    env = BulletTabletopEnv("pick_and_lift", BulletTabletopConfig(**{**SMALL_CAMERAS, "obs_type": "pointcloud",
+                                                                     "success": "held"}))
+    try:
+        env.reset(seed=demonstration.seed)
+        successes = [env.step(action)[4]["is_success"] for action in [*states[1:], *[states[-1]] * 10]]
+    finally:
+        env.close()
+    assert any(successes)
+
+
+def test_a_placement_records_its_release_and_maps_to_the_scripts_grasp_and_release():
+    """Under the default landmark noise and drops, a put_in_tray demonstration goes on past the goal until the pinch
+    has let go, and the conversion's mapping finds the script's one grasp and one release within the frames the
+    fingers take to move."""
+    env = BulletTabletopEnv("put_in_tray", BulletTabletopConfig(**SMALL_CAMERAS))
+    try:
+        demonstration = perform_hand_demonstration(env, 0)
+    finally:
+        env.close()
+    assert demonstration.success and demonstration.aperture[-1] > SIM_HAND_MAPPING.open_above_m
+    mapped = map_hand_to_gripper(demonstration.recording.landmarks_world, SIM_HAND_MAPPING,
+                                 aperture_window_frames=HandConvertSettings.aperture_window_frames).gripper_open
+    scripted_changes = np.flatnonzero(np.diff(demonstration.pinch_open)) + 1
+    mapped_changes = np.flatnonzero(np.diff(mapped)) + 1
+    assert len(scripted_changes) == len(mapped_changes) == 2 and mapped[-1] == 1.0
+    assert np.all((mapped_changes >= scripted_changes) & (mapped_changes <= scripted_changes + 3))
 
 
 @pytest.mark.slow
