@@ -55,9 +55,9 @@ def window_errors(tasks: list[str], seeds: list[int], windows: list[int], apertu
                 for window, aperture_window, hold in settings:
                     record = records[(window, aperture_window, hold)]
                     try:
-                        mapped = map_hand_to_gripper(
-                            demonstration.recording.landmarks_world, replace(SIM_HAND_MAPPING, gripper_hold_frames=hold),
-                            window_frames=window, aperture_window_frames=aperture_window)
+                        mapping = replace(SIM_HAND_MAPPING, gripper_hold_frames=hold)
+                        mapped = map_hand_to_gripper(demonstration.recording.landmarks_world, mapping,
+                                                     window_frames=window, aperture_window_frames=aperture_window)
                     except HandGapError:
                         record["gaps"] += 1
                         continue

@@ -200,17 +200,17 @@ def map_hand_to_gripper(
     of √2·σ, enough to cross the hysteresis band; the mean over w frames divides both by up to √w, at the cost of
     blurring motion faster than w frames, above all at the turning points where the hand touches things (the mean of
     the frames around the lowest point of a push lies above it). With ``aperture_window_frames`` a > 1 (odd), the
-    thumb-index aperture that sets the gripper state is then the median of the found frames' among the a centred on
+    thumb-index aperture that sets the gripper state is then the median over the found frames among the a centred on
     each (:func:`centred_median`), the poses left as they are: the median keeps a steady close or release where it is
-    (on a monotone run the centre is the median) and ignores a noisy frame or two. A run of at most ``max_gap_frames`` missing frames
-    is bridged: between two found frames the position is interpolated linearly and the rotation by SLERP; before the
-    first / after the last found frame the nearest found pose is held. The gripper state is held through a gap. A
-    longer run raises ``HandGapError`` naming its frames (trim the recording to where the hand is in view).
-    Hysteresis, its debounce and smoothing then run forward in time, as they do live; then, as a recording allows,
-    each gripper change is dated back to the frame after the aperture last read the old state (above
-    ``open_above_m`` before a close, below ``close_below_m`` before an open), never before the previous change: a
-    pinch changes when the fingers start to move, not when the aperture has crossed the band and held there
-    (:func:`date_gripper_changes_back`).
+    (on a monotone run the centre is the median) and ignores a noisy frame or two. A run of at most
+    ``max_gap_frames`` missing frames is bridged: between two found frames the position is interpolated linearly and
+    the rotation by SLERP; before the first / after the last found frame the nearest found pose is held. The gripper
+    state is held through a gap. A longer run raises ``HandGapError`` naming its frames (trim the recording to where
+    the hand is in view). Hysteresis, its debounce and smoothing then run forward in time, as they do live; then, as
+    a recording allows, each gripper change is dated back to the frame after the aperture last read the old state
+    (above ``open_above_m`` before a close, below ``close_below_m`` before an open), never before the frame where the
+    previous change was detected: a pinch changes when the fingers start to move, not when the aperture has crossed
+    the band and held there (:func:`date_gripper_changes_back`).
     """
     config = config or HandMappingConfig()
     landmarks_world = checked_landmarks(landmarks_world, 3, "(T, 21, 3)")
@@ -237,8 +237,8 @@ def map_hand_to_gripper(
 
 def date_gripper_changes_back(gripper_open: np.ndarray, aperture: np.ndarray, config: HandMappingConfig) -> np.ndarray:
     """``gripper_open (T,)`` (the causal states of a recording) with each change moved back to the frame after the
-    last one whose ``aperture (T,)`` m (NaN: missing) read the old state, and no earlier than the frame after the
-    previous change."""
+    last one whose ``aperture (T,)`` m (NaN: missing) read the old state, and no earlier than the frame where the
+    previous change was detected (which read the state it changed to)."""
     gripper_open = gripper_open.copy()
     with np.errstate(invalid="ignore"):
         reads_closed, reads_open = aperture < config.close_below_m, aperture > config.open_above_m

@@ -136,9 +136,9 @@ def test_gripper_hysteresis_does_not_chatter_near_a_threshold():
 
 def test_debounce_ignores_blips_and_dates_a_recorded_change_to_its_first_frame():
     config = HandMappingConfig(close_below_m=0.035, open_above_m=0.05, gripper_hold_frames=3)
-    open_, closed = 0.08, 0.02
-    #            0      1      2       3       4      5       6       7       8      9      10      11     12      13
-    apertures = [open_, open_, closed, closed, open_, closed, closed, closed, closed, open_, closed, open_, closed, open_]
+    o, c = 0.08, 0.02  # open, closed
+    #           0  1  2  3  4  5  6  7  8  9  10 11 12 13
+    apertures = [o, o, c, c, o, c, c, c, c, o, c, o, c, o]
     landmarks = landmarks_from_gripper(smooth_poses(len(apertures)), np.array(apertures))
     gripper = map_hand_to_gripper(landmarks, config).gripper_open
     # two closed frames (2-3) and the open blips (9, 11, 13) change nothing; the run of closes from frame 5 does, from 5
