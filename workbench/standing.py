@@ -240,8 +240,10 @@ def _stage_resume(save: Path, train_dir: Path, base_lr: float | None = None,
 
 # ---------------------------------------------------------------------------------------------------- validation
 def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.Popen | None]:
-    """Start generating each validation set missing under ``root`` (None for those already there)."""
+    """Start generating each validation set missing under ``root`` (None for those already there), each process's
+    output to ``root/<name>.log``: a pipe nobody reads until the end fills and stops the generator mid-set."""
     processes = {}
+    root.mkdir(parents=True, exist_ok=True)
     for name, preset in VALIDATION_CONFIGS.items():
         if (root / name / "meta" / "info.json").is_file():
             processes[name] = None
@@ -249,16 +251,18 @@ def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.
         command = program("lerobot-ip-generate") + [
             "--config", preset, "--out", str(root / name), "--repo-id", f"local/{name}", "--num-tasks",
             str(config.val_tasks), "--workers", str(config.val_workers), "--no-progress", "--overwrite"]
-        processes[name] = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                           env={**os.environ, "OMP_NUM_THREADS": "1"})
+        with open(root / f"{name}.log", "w") as log:
+            processes[name] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
+                                               env={**os.environ, "OMP_NUM_THREADS": "1"})
     return processes
 
 
 def wait_for(generating: dict[str, subprocess.Popen | None]) -> None:
-    """Wait for :func:`validation_sets`' processes; ``StandingError`` with its output where one failed."""
+    """Wait for :func:`validation_sets`' processes; ``StandingError`` with the tail of its log where one failed."""
     for name, process in generating.items():
         if process is not None and process.wait() != 0:
-            raise StandingError(f"generating the {name} validation set failed: {process.stderr.read()[-2000:]}")
+            log = Path(process.args[process.args.index("--out") + 1]).with_suffix(".log")
+            raise StandingError(f"generating the {name} validation set failed: {log.read_text()[-2000:]}")
 
 
 def figures(result: dict) -> dict:

@@ -465,3 +465,16 @@ def test_a_run_whose_process_stopped_is_concluded_from_its_folder(tmp_path, monk
     assert entry["started"] == "2026-11-28T05:54:07+00:00" and entry["wall_s"] > 0
     assert (standing / "last" / "pretrained_model" / "model.safetensors").read_text() == "weights 1500"
     assert len(json.loads(curve.read_text())["points"]) == 2
+
+
+def test_validation_generators_that_print_much_do_not_block(tmp_path, monkeypatch):
+    """A generator's output goes to a log, not to a pipe nobody reads until the end (which filled at 64 KiB and stopped
+    the generators mid-set); a failing one's error names the tail of its log."""
+    import sys
+
+    speak = "import sys; sys.stderr.write('x' * 400_000); sys.exit(int('local/one_layout' in sys.argv))"
+    monkeypatch.setattr(standing_module, "program", lambda name: [sys.executable, "-c", speak])
+    generating = standing_module.validation_sets(StandingConfig(), tmp_path)
+    with pytest.raises(standing_module.StandingError, match="one_layout validation set failed: x+$"):
+        standing_module.wait_for(generating)
+    assert (tmp_path / "moved.log").stat().st_size == 400_000
