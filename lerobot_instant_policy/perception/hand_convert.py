@@ -8,8 +8,9 @@ Per recording (one episode):
    move); a frame whose ``hand_score`` is below ``min_hand_score``, or whose ``handedness`` is not ``hand`` (when
    set), counts as missing;
 2. the gripper: ``hand.map_hand_to_gripper`` (the landmarks averaged over a centred window of ``window_frames``,
-   then EE pose, gripper state with hysteresis, gaps of at most ``mapping.max_gap_frames`` bridged and marked; a
-   longer gap raises ``HandGapError`` naming the recording and its frames);
+   then EE pose, gripper state with hysteresis on the aperture's centred median of ``aperture_window_frames``, gaps
+   of at most ``mapping.max_gap_frames`` bridged and marked; a longer gap raises ``HandGapError`` naming the
+   recording and its frames);
 3. the clouds: every camera's depth back-projected and fused, the hand removed — its pixels (``hand_mask``, when the
    recording has one, grown by ``hand_mask_dilate_px`` for a detector's mask, ``ClearHandPixelsStep``) and everything
    within ``hand_radius_m`` of its skeleton (``MaskHandPointsStep``; on a frame where a landmark is missing, that
