@@ -14,8 +14,10 @@ Per recording (one episode):
 3. the clouds: every camera's depth back-projected and fused, the hand removed — its pixels (``hand_mask``, when the
    recording has one, grown by ``hand_mask_dilate_px`` for a detector's mask, ``ClearHandPixelsStep``) and everything
    within ``hand_radius_m`` of its skeleton (``MaskHandPointsStep``; on a frame where a landmark is missing, that
-   landmark interpolated in time from the frames that have it) — then the workspace crop, the table plane and
-   resampling to ``num_points`` (``perception.steps``);
+   landmark interpolated in time from the frames that have it) — then the workspace crop, the segmentation and
+   resampling to ``num_points`` (``perception.steps``). The segmentation is the recording's ``object_mask`` when it
+   has one (a segmenter's task-object pixels: a flat target, a marker on the table, stays), else everything more
+   than a few millimetres above the table plane;
 4. ``observation.state`` the mapped EE pose and gripper, ``action`` the next frame's (the last frame's repeated).
 
 Every recording is loaded, checked and mapped before anything is written; a failure while writing removes the
@@ -47,6 +49,7 @@ from .steps import (
     DEPTH_KEY,
     EXTRINSICS_KEY,
     INTRINSICS_KEY,
+    OBJECT_MASK_KEY,
     CropWorkspaceStep,
     DepthToPointCloudStep,
     RemoveTablePlaneStep,
@@ -150,18 +153,18 @@ def landmarks_for_masking(landmarks_world: np.ndarray) -> np.ndarray | None:
     return filled
 
 
-def cloud_pipeline(settings: HandConvertSettings, with_hand_mask: bool) -> PolicyProcessorPipeline:
+def cloud_pipeline(settings: HandConvertSettings, with_hand_mask: bool,
+                   with_object_mask: bool = False) -> PolicyProcessorPipeline:
     """Step 3 of the module docstring as a processor pipeline: ``depth (1, C, H, W)`` m, ``intrinsics``,
-    ``T_world_camera``, ``hand_landmarks (1, 21, 3)`` (and ``hand_mask (1, C, H, W)``) → ``pointcloud (1, N, 3)``."""
+    ``T_world_camera``, ``hand_landmarks (1, 21, 3)`` (and ``hand_mask (1, C, H, W)``, ``object_mask (1, C, H, W)``)
+    → ``pointcloud (1, N, 3)``."""
     steps = [DepthToPointCloudStep()]
     if with_hand_mask:
         steps.append(ClearHandPixelsStep(dilate_px=settings.hand_mask_dilate_px))
-    steps += [
-        CropWorkspaceStep(low=tuple(settings.workspace_low), high=tuple(settings.workspace_high)),
-        RemoveTablePlaneStep(),
-        MaskHandPointsStep(radius_m=settings.hand_radius_m),
-        ResamplePointCloudStep(settings.num_points),
-    ]
+    steps.append(CropWorkspaceStep(low=tuple(settings.workspace_low), high=tuple(settings.workspace_high)))
+    if not with_object_mask:  # the mask is the segmentation; the plane would also take what lies flat on the table
+        steps.append(RemoveTablePlaneStep())
+    steps += [MaskHandPointsStep(radius_m=settings.hand_radius_m), ResamplePointCloudStep(settings.num_points)]
     return PolicyProcessorPipeline(steps=steps, name="instant_policy_hand_perception")
 
 
@@ -172,7 +175,7 @@ def episode_clouds(episode: HandEpisode, settings: HandConvertSettings) -> np.nd
     if landmarks is None:
         raise HandConversionError(f"{recording.name}: some hand landmark is missing in every frame, so the hand "
                                   "cannot be removed from the clouds")
-    pipeline = cloud_pipeline(settings, recording.hand_mask is not None)
+    pipeline = cloud_pipeline(settings, recording.hand_mask is not None, recording.object_mask is not None)
     depth = recording.depth_metres()
     clouds = []
     for frame in range(recording.num_frames):
@@ -184,6 +187,8 @@ def episode_clouds(episode: HandEpisode, settings: HandConvertSettings) -> np.nd
         }
         if recording.hand_mask is not None:
             observation[HAND_MASK_KEY] = recording.hand_mask[frame:frame + 1]
+        if recording.object_mask is not None:
+            observation[OBJECT_MASK_KEY] = recording.object_mask[frame:frame + 1]
         try:
             clouds.append(np.asarray(pipeline(observation)[POINTCLOUD_KEY][0], dtype=np.float32))
         except (ValueError, RuntimeError) as error:

@@ -18,7 +18,9 @@ Arrays, for ``T`` frames of ``C`` cameras of ``H`` x ``W`` pixels:
     with ``landmarks`` "world": ``landmarks_world (T, 21, 3)`` metres, world frame (a glove, a motion-capture system,
     the simulator), NaN where missing;
     with ``landmarks`` "none": no landmarks yet (the detector's input, ``lerobot-ip-convert-hand --detector-model``);
-    optionally ``hand_mask (T, C, H, W)`` bool: the hand's pixels (a segmenting detector, the simulator).
+    optionally ``hand_mask (T, C, H, W)`` bool: the hand's pixels (a segmenting detector, the simulator);
+    optionally ``object_mask (T, C, H, W)`` bool: the task objects' pixels (a segmenter run on the RGB such as SAM 2,
+    the simulator's segmentation), which then replaces the table-plane segmentation of the conversion.
 
 :func:`load_hand_recording` checks all of it and raises :class:`HandRecordingError` naming the recording, the field
 and the frame; :func:`save_hand_recording` checks before it writes and writes a folder whole or not at all.
@@ -58,8 +60,8 @@ class HandRecording:
     """One demonstration by a hand (module docstring for the arrays' shapes, units and frames).
 
     ``landmarks_px``, ``handedness`` and ``hand_score`` are set when ``landmarks == "image"``, ``landmarks_world``
-    when ``"world"``, none of them when ``"none"``; ``hand_mask`` is optional. ``name`` says where it came from in
-    error messages.
+    when ``"world"``, none of them when ``"none"``; ``hand_mask`` and ``object_mask`` are optional. ``name`` says
+    where it came from in error messages.
     """
 
     task: str
@@ -76,6 +78,7 @@ class HandRecording:
     hand_score: np.ndarray | None = None
     landmarks_world: np.ndarray | None = None
     hand_mask: np.ndarray | None = None
+    object_mask: np.ndarray | None = None
     name: str = field(default="recording", compare=False)
 
     def __post_init__(self):
@@ -132,8 +135,9 @@ class HandRecording:
                                      f"{self.hand_camera!r}")
         self.hand_camera = int(self.hand_camera)
         self._validate_landmarks(frames)
-        if self.hand_mask is not None:
-            self.hand_mask = _array(self.hand_mask, where, "hand_mask", 4, "(T, C, H, W)", self.depth.shape) != 0
+        for name in ("hand_mask", "object_mask"):
+            if getattr(self, name) is not None:
+                setattr(self, name, _array(getattr(self, name), where, name, 4, "(T, C, H, W)", self.depth.shape) != 0)
         self._validate_cameras()
 
     def _validate_landmarks(self, frames: int) -> None:
@@ -217,8 +221,8 @@ def save_hand_recording(recording: HandRecording, folder: str | Path, overwrite:
         arrays = {"rgb": recording.rgb, "depth": recording.depth, "intrinsics": recording.intrinsics,
                   "T_world_camera": recording.T_world_camera}
         arrays.update({name: getattr(recording, name) for name in _ARRAYS[recording.landmarks]})
-        if recording.hand_mask is not None:
-            arrays["hand_mask"] = recording.hand_mask
+        arrays.update({name: getattr(recording, name) for name in ("hand_mask", "object_mask")
+                       if getattr(recording, name) is not None})
         np.savez_compressed(staging / FRAMES_FILE, **arrays)
         if folder.exists():
             shutil.rmtree(folder)

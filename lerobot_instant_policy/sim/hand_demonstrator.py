@@ -20,8 +20,10 @@ move only along their joints.
 Every control step (``fps``) records, before the step: each camera's RGB and depth (millimetres) with its
 intrinsics and pose (the env's cameras at ``depth_resolution``), the hand's 21 landmarks in the world frame with
 detector-like Gaussian noise (``landmark_noise_m`` per coordinate) and whole frames dropped with probability
-``drop_probability`` (NaN), and (``record_hand_mask``) the hand's pixels from the cameras' segmentation, where the
-hand has its own body id: what a segmenting detector would give. A demonstration ends at its first step in the
+``drop_probability`` (NaN), (``record_hand_mask``) the hand's pixels from the cameras' segmentation, where the
+hand has its own body id: what a segmenting detector would give, and (``record_object_mask``) the task objects'
+pixels from the same segmentation: what a segmenter run on the RGB gives, and how the robot's own demonstrations in
+this simulator are segmented. A demonstration ends at its first step in the
 task's goal state as a person's does: ``after_goal_frames`` frames after it, still following the script, and when
 the hand is letting go there, not before the pinch has been open that many frames. A recording holds no command,
 only where the hand was, so one cut at the goal would end a step short of it (a converted episode's last action is
@@ -69,6 +71,7 @@ class HandDemonstratorConfig:
     carry_force_n: float = 200.0
     after_goal_frames: int = 3
     record_hand_mask: bool = True
+    record_object_mask: bool = True
 
     def __post_init__(self):
         if min(self.landmark_noise_m, self.approach_jitter_m, self.aperture_wobble_m) < 0:
@@ -161,9 +164,10 @@ def _pinched_link(env: BulletTabletopEnv, hand: SimulatedHand, T_world_ee: np.nd
 
 
 def _render(env: BulletTabletopEnv, views: list[np.ndarray], hand_body: int) -> tuple[np.ndarray, ...]:
-    """Every camera's ``rgb (C, H, W, 3)`` uint8, ``depth (C, H, W)`` m (0: no return) and ``hand (C, H, W)`` bool."""
+    """Every camera's ``rgb (C, H, W, 3)`` uint8, ``depth (C, H, W)`` m (0: no return), ``hand (C, H, W)`` bool
+    and ``objects (C, H, W)`` bool (the task objects' pixels)."""
     width, height = env.config.depth_resolution
-    rgbs, depths, hands = [], [], []
+    rgbs, depths, hands, objects = [], [], [], []
     for camera, view in zip(env.config.cameras, views, strict=True):
         projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, width / height, camera.near, camera.far)
         _, _, rgba, buffer, segmentation = pybullet.getCameraImage(
@@ -174,8 +178,10 @@ def _render(env: BulletTabletopEnv, views: list[np.ndarray], hand_body: int) -> 
         depth = camera.far * camera.near / (camera.far - (camera.far - camera.near) * buffer)
         depths.append(np.where(buffer >= 1.0 - 1e-7, 0.0, depth))
         rgbs.append(np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3])
-        hands.append(np.asarray(segmentation).reshape(height, width) == hand_body)
-    return np.stack(rgbs), np.stack(depths), np.stack(hands)
+        segmentation = np.asarray(segmentation).reshape(height, width)
+        hands.append(segmentation == hand_body)
+        objects.append(np.isin(segmentation, env.scene.object_bodies))
+    return np.stack(rgbs), np.stack(depths), np.stack(hands), np.stack(objects)
 
 
 def perform_hand_demonstration(env: BulletTabletopEnv, seed: int, config: HandDemonstratorConfig | None = None,
@@ -200,12 +206,13 @@ def perform_hand_demonstration(env: BulletTabletopEnv, seed: int, config: HandDe
     views = [camera_view_matrix(camera) for camera in env.config.cameras]
     T_hand, aperture, carry = T_world_start, open_aperture, None
     hand.set_pose(T_hand, aperture)
-    frames = dict(rgb=[], depth=[], hand_mask=[], landmarks=[], T_world_ee=[], aperture=[], pinch_open=[])
+    frames = dict(rgb=[], depth=[], hand_mask=[], object_mask=[], landmarks=[], T_world_ee=[], aperture=[],
+                  pinch_open=[])
     success, frames_open, frames_after_goal = False, 0, 0
     for step in range(env.task_impl.max_episode_steps + AFTER_GOAL_STEPS_MAX):
-        rgb, depth, hand_mask = _render(env, views, hand.body)
-        for key, value in (("rgb", rgb), ("depth", depth), ("hand_mask", hand_mask), ("landmarks", hand.landmarks()),
-                           ("T_world_ee", T_hand), ("aperture", hand.aperture)):
+        rgb, depth, hand_mask, object_mask = _render(env, views, hand.body)
+        for key, value in (("rgb", rgb), ("depth", depth), ("hand_mask", hand_mask), ("object_mask", object_mask),
+                           ("landmarks", hand.landmarks()), ("T_world_ee", T_hand), ("aperture", hand.aperture)):
             frames[key].append(value)
         target, close = targets[min(step, len(targets) - 1)], not pinch_open[min(step, len(targets) - 1)]
         frames["pinch_open"].append(not close)
@@ -250,6 +257,7 @@ def perform_hand_demonstration(env: BulletTabletopEnv, seed: int, config: HandDe
         T_world_camera=np.broadcast_to(env.camera_poses(), (frame_count, *env.camera_poses().shape)),
         landmarks="world", depth_unit="mm", landmarks_world=landmarks,
         hand_mask=np.stack(frames["hand_mask"]) if config.record_hand_mask else None,
+        object_mask=np.stack(frames["object_mask"]) if config.record_object_mask else None,
         name=f"{env.task} seed {seed} (simulated hand)",
     )
     return HandDemonstration(recording, success, seed, np.stack(frames["T_world_ee"]), np.array(frames["aperture"]),

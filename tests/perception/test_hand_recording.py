@@ -134,9 +134,11 @@ def test_round_trip_of_both_landmark_kinds(scene, tmp_path):
     image = recording.with_image_landmarks(pixels, np.array(["Right"] * 2 + [""] + ["Right"] * (frames - 3)),
                                            np.r_[0.9, 0.9, np.nan, np.full(frames - 3, 0.9)])
     millimetres = HandRecording(**{**vars(image), "depth": np.round(image.depth * 1000).astype(np.uint16),
-                                   "depth_unit": "mm", "hand_mask": image.depth > 0.4})
+                                   "depth_unit": "mm", "hand_mask": image.depth > 0.4,
+                                   "object_mask": image.depth > 0.45})
     loaded = load_hand_recording(save_hand_recording(millimetres, tmp_path / "image"))
     assert loaded.landmarks == "image" and loaded.landmarks_world is None and loaded.hand_mask.dtype == bool
+    np.testing.assert_array_equal(loaded.object_mask, recording.depth > 0.45)
     np.testing.assert_array_equal(loaded.landmarks_px, pixels)
     assert loaded.handedness.tolist()[1:3] == ["Right", ""] and np.isnan(loaded.hand_score[2])
     assert np.abs(loaded.depth_metres() - recording.depth).max() <= 0.0005
@@ -158,6 +160,7 @@ def test_round_trip_of_both_landmark_kinds(scene, tmp_path):
         (dict(landmarks="image"), "needs exactly"),
         (dict(landmarks="glove"), "landmarks must be one of"),
         (dict(hand_camera=1), "hand_camera"),
+        (dict(object_mask=np.ones((8, 1, 72, 95), bool)), "object_mask must have shape"),
         (dict(task=""), "task"),
     ],
 )
@@ -243,6 +246,56 @@ def test_without_the_hand_mask_the_cloud_would_hold_the_hand(scene, tmp_path):
                    "observation.hand_landmarks": far_away_hand}
     points = np.asarray(pipeline(observation)["observation.pointcloud"][0])
     assert _cloud_outside_cube(points, lift[frame]).mean() > 0.2
+
+
+MARKER_LOW, MARKER_HIGH = np.array([0.57, 0.06, 0.0]), np.array([0.63, 0.12, 0.001])  # a flat target on the table
+
+
+def _with_marker(recording: HandRecording, lift: np.ndarray) -> HandRecording:
+    """``recording`` with a 1 mm marker drawn on the table and ``object_mask``: the pixels that see the cube or the
+    marker (the hand's pixels, and the table's, are not in it)."""
+    rng = np.random.default_rng(1)
+    marker = rng.uniform(MARKER_LOW, MARKER_HIGH, (4000, 3))
+    marker[:, 2] = MARKER_HIGH[2]
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH]
+    rays = np.stack([(u - INTRINSICS[0, 2]) / FOCAL, (v - INTRINSICS[1, 2]) / FOCAL, np.ones_like(u, float)], axis=-1)
+    depths, masks = [], []
+    for frame in range(recording.num_frames):
+        depth = recording.depth[frame, 0].astype(np.float64)
+        drawn = _depth_image(marker)
+        depth = np.where((drawn > 0) & ((depth == 0) | (drawn < depth)), drawn, depth)
+        world = transform_points(T_WORLD_CAMERA, (rays * depth[..., None]).reshape(-1, 3)).reshape(HEIGHT, WIDTH, 3)
+        # a pixel spans about 5 mm here, and its back-projected point lies up to that far off the surface it saw
+        on_cube = np.all(np.abs(world - CUBE_CENTRE - (0.0, 0.0, lift[frame])) <= CUBE_HALF + 0.005, axis=-1) & \
+            (world[..., 2] > lift[frame] + 0.005)
+        on_marker = np.all((world[..., :2] >= MARKER_LOW[:2]) & (world[..., :2] <= MARKER_HIGH[:2]), axis=-1)
+        depths.append(depth[None])
+        masks.append(((on_cube | on_marker) & (depth > 0))[None])
+    return HandRecording(**{**vars(recording), "depth": np.stack(depths).astype(np.float32),
+                            "object_mask": np.stack(masks)})
+
+
+def test_an_object_mask_keeps_a_flat_target_the_table_plane_takes(scene, tmp_path):
+    """A segmenter's object mask is the conversion's segmentation: a marker 1 mm high stays in every frame's cloud
+    beside the cube, with no table or hand point; converted without the mask, the table plane takes the marker."""
+    recording, _, _, lift = scene
+    marked = _with_marker(recording, lift)
+    for with_mask in (True, False):
+        folder = tmp_path / f"mask-{with_mask}"
+        save_hand_recording(marked if with_mask else HandRecording(**{**vars(marked), "object_mask": None}),
+                            folder / "recordings" / "episode_000")
+        convert_hand_recordings(HandConvertSettings(folder / "recordings", folder / "out", "local/hand",
+                                                    num_points=512))
+        [demonstration] = load_demonstrations("local/hand", folder / "out", "pick up the cube", 1)
+        for frame, points in enumerate(demonstration.points_world):
+            on_marker = np.all((points >= MARKER_LOW - (0.005, 0.005, 0.0)) &
+                               (points <= MARKER_HIGH + (0.005, 0.005, 0.005)), axis=1)
+            if with_mask:
+                assert on_marker.sum() > 50 and (~on_marker).sum() > 50, f"frame {frame}: the marker or cube missing"
+                stray = _cloud_outside_cube(points, lift[frame], 0.006) & ~on_marker
+                assert not stray.any(), f"frame {frame}: a table or hand point"
+            else:
+                assert not on_marker.any(), f"frame {frame}: the table plane left marker points"
 
 
 def test_image_landmarks_convert_with_missing_frames_bridged_and_marked(scene, tmp_path):

@@ -117,12 +117,13 @@ def test_a_placement_records_its_release_and_maps_to_the_scripts_grasp_and_relea
 
 @pytest.mark.slow
 def test_no_hand_point_reaches_an_object_cloud(tmp_path):
-    """Without the segmentation's hand mask (a detector with landmarks only) and with it: every converted cloud
-    point lies farther than a finger's radius from the hand's true skeleton."""
+    """Without the segmentation's masks (a detector with landmarks only, the table plane for the objects) and with
+    them: every converted cloud point lies farther than a finger's radius from the hand's true skeleton."""
     radius = max(finger.radius for finger in FINGERS) + 0.002
     for record_hand_mask in (False, True):
         out = tmp_path / f"mask-{record_hand_mask}"
-        config = HandDemonstratorConfig(landmark_noise_m=0.0, drop_probability=0.0, record_hand_mask=record_hand_mask)
+        config = HandDemonstratorConfig(landmark_noise_m=0.0, drop_probability=0.0, record_hand_mask=record_hand_mask,
+                                        record_object_mask=record_hand_mask)
         record_hand_demonstrations("pick_and_lift", 1, out, "local/pick_and_lift", 5, config,
                                    env_config=BulletTabletopConfig(**SMALL_CAMERAS))
         (demonstration,) = load_demonstrations("local/pick_and_lift", out, "pick_and_lift", 1)
@@ -130,6 +131,20 @@ def test_no_hand_point_reaches_an_object_cloud(tmp_path):
         landmarks = load_hand_recording(folder).landmarks_world
         for points, hand in zip(demonstration.points_world, landmarks, strict=True):
             assert mask_hand_points(points, hand, radius).all()
+
+
+@pytest.mark.slow
+def test_the_objects_mask_keeps_slide_blocks_flat_target(tmp_path):
+    """slide_block's target is a square 1 mm high: with the segmentation's object mask every converted cloud holds
+    it, as the robot's own demonstrations do; from depth alone the table plane takes it with the table."""
+    for record_object_mask in (False, True):
+        out = tmp_path / f"objects-{record_object_mask}"
+        config = HandDemonstratorConfig(record_object_mask=record_object_mask)
+        record_hand_demonstrations("slide_block", 1, out, "local/slide_block", 0, config,
+                                   env_config=BulletTabletopConfig(**SMALL_CAMERAS))
+        (demonstration,) = load_demonstrations("local/slide_block", out, "slide_block", 1)
+        on_table = (demonstration.points_world[..., 2] < 0.005).sum(axis=1)
+        assert (on_table > 0).all() if record_object_mask else (on_table == 0).all()
 
 
 @pytest.mark.slow
