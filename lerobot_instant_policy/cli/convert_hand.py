@@ -49,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="landmarks averaged over this many frames centred on each (odd; 1: off) before mapping")
     parser.add_argument("--aperture-window-frames", type=int, default=HandConvertSettings.aperture_window_frames,
                         help="the gripper state reads the median aperture of this many frames centred on each (odd)")
+    parser.add_argument("--dwell-frames", type=int, default=HandConvertSettings.dwell_frames,
+                        help="the hand holds still over this many frames from each gripper change: their poses are "
+                        "averaged (1: off; for a demonstrator who pauses while the fingers close and open)")
     parser.add_argument("--position-smoothing", type=float, default=defaults.position_smoothing)
     parser.add_argument("--rotation-smoothing", type=float, default=defaults.rotation_smoothing)
     parser.add_argument("--hand", choices=("Left", "Right"), help="only frames of this hand count (default: either)")
@@ -88,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         summary = convert_hand_recordings(HandConvertSettings(
             recordings=args.recordings, out=args.out, repo_id=args.repo_id, mapping=mapping,
             window_frames=args.window_frames, aperture_window_frames=args.aperture_window_frames,
-            num_points=args.num_points, hand_radius_m=args.hand_radius,
+            dwell_frames=args.dwell_frames, num_points=args.num_points, hand_radius_m=args.hand_radius,
             hand_mask_dilate_px=args.hand_mask_dilate, min_hand_score=args.min_hand_score,
             hand=args.hand, workspace_low=args.workspace_low, workspace_high=args.workspace_high,
             overwrite=args.overwrite,

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from lerobot.configs import FeatureType, PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry
+from scipy.spatial.transform import Rotation
 
 from ..contract import POSE_GRIPPER_SHAPE, STATE_KEY, vectors_from_poses
 from ..geometry.se3 import slerp_rotations, transform_points
@@ -188,7 +189,7 @@ class HandTrajectory:
 
 def map_hand_to_gripper(
     landmarks_world, config: HandMappingConfig | None = None, valid: np.ndarray | None = None,
-    window_frames: int = 1, aperture_window_frames: int = 1,
+    window_frames: int = 1, aperture_window_frames: int = 1, dwell_frames: int = 1,
 ) -> HandTrajectory:
     """A recorded episode's ``landmarks_world (T, 21, 3)`` (``valid (T,)`` bool: False marks a frame missing) → its
     :class:`HandTrajectory`.
@@ -210,7 +211,10 @@ def map_hand_to_gripper(
     a recording allows, each gripper change is dated back to the frame after the aperture last read the old state
     (above ``open_above_m`` before a close, below ``close_below_m`` before an open), never before the frame where the
     previous change was detected: a pinch changes when the fingers start to move, not when the aperture has crossed
-    the band and held there (:func:`date_gripper_changes_back`).
+    the band and held there (:func:`date_gripper_changes_back`). With ``dwell_frames`` d > 1 the hand is taken to hold
+    still over the d frames from each change on, as a hand does while its fingers close or open, and their poses are
+    replaced by their mean (:func:`hold_still_at_changes`): the pose a grasp or a release happens at, which a replay
+    and a placement depend on, then carries up to √d times less landmark noise.
     """
     config = config or HandMappingConfig()
     landmarks_world = checked_landmarks(landmarks_world, 3, "(T, 21, 3)")
@@ -232,7 +236,29 @@ def map_hand_to_gripper(
     hand_filter = _HandFilter(config)
     filtered = [hand_filter.update(T_frame, width) for T_frame, width in zip(T_measured, aperture, strict=True)]
     gripper_open = date_gripper_changes_back(np.array([g for _, g in filtered]), aperture, config)
-    return HandTrajectory(np.stack([T for T, _ in filtered]), gripper_open, found)
+    T_world_ee = hold_still_at_changes(np.stack([T for T, _ in filtered]), gripper_open, found, dwell_frames)
+    return HandTrajectory(T_world_ee, gripper_open, found)
+
+
+def hold_still_at_changes(T_world_ee: np.ndarray, gripper_open: np.ndarray, found: np.ndarray,
+                          dwell_frames: int) -> np.ndarray:
+    """``T_world_ee (T, 4, 4)`` with the poses of the ``dwell_frames`` frames from each change of ``gripper_open (T,)``
+    on (fewer where the next change or the end comes first) replaced by the mean of the ``found (T,)`` ones among
+    them: positions averaged, rotations by their chordal mean (``scipy``'s ``Rotation.mean``). ``dwell_frames`` 1:
+    unchanged."""
+    if dwell_frames < 1 or int(dwell_frames) != dwell_frames:
+        raise ValueError(f"dwell_frames must be an integer >= 1 (1: off), got {dwell_frames}")
+    T_world_ee = T_world_ee.copy()
+    changes = np.flatnonzero(np.diff(gripper_open)) + 1
+    ends = np.minimum(changes + dwell_frames, np.append(changes[1:], len(T_world_ee)))
+    for change, end in zip(changes, ends, strict=True):
+        span = np.arange(change, end)
+        measured = span[found[span]]
+        if len(measured) < 2:
+            continue
+        T_world_ee[span, :3, 3] = T_world_ee[measured, :3, 3].mean(axis=0)
+        T_world_ee[span, :3, :3] = Rotation.from_matrix(T_world_ee[measured, :3, :3]).mean().as_matrix()
+    return T_world_ee
 
 
 def date_gripper_changes_back(gripper_open: np.ndarray, aperture: np.ndarray, config: HandMappingConfig) -> np.ndarray:

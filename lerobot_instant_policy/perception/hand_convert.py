@@ -8,9 +8,10 @@ Per recording (one episode):
    move); a frame whose ``hand_score`` is below ``min_hand_score``, or whose ``handedness`` is not ``hand`` (when
    set), counts as missing;
 2. the gripper: ``hand.map_hand_to_gripper`` (the landmarks averaged over a centred window of ``window_frames``,
-   then EE pose, gripper state with hysteresis on the aperture's centred median of ``aperture_window_frames``, gaps
-   of at most ``mapping.max_gap_frames`` bridged and marked; a longer gap raises ``HandGapError`` naming the
-   recording and its frames);
+   then EE pose, gripper state with hysteresis on the aperture's centred median of ``aperture_window_frames``, the
+   poses of the ``dwell_frames`` from each gripper change averaged (the hand holds still while its fingers close or
+   open), gaps of at most ``mapping.max_gap_frames`` bridged and marked; a longer gap raises ``HandGapError`` naming
+   the recording and its frames);
 3. the clouds: every camera's depth back-projected and fused, the hand removed — its pixels (``hand_mask``, when the
    recording has one, grown by ``hand_mask_dilate_px`` for a detector's mask, ``ClearHandPixelsStep``) and everything
    within ``hand_radius_m`` of its skeleton (``MaskHandPointsStep``; on a frame where a landmark is missing, that
@@ -73,6 +74,7 @@ class HandConvertSettings:
     mapping: HandMappingConfig = field(default_factory=HandMappingConfig)
     window_frames: int = 1
     aperture_window_frames: int = 5
+    dwell_frames: int = 1
     num_points: int = 2048
     hand_radius_m: float = 0.015
     hand_mask_dilate_px: int = 2
@@ -93,6 +95,8 @@ class HandConvertSettings:
         for name in ("window_frames", "aperture_window_frames"):
             if getattr(self, name) < 1 or getattr(self, name) % 2 == 0:
                 raise HandConversionError(f"{name} must be an odd number >= 1 (1: off), got {getattr(self, name)}")
+        if self.dwell_frames < 1:
+            raise HandConversionError(f"dwell_frames must be >= 1 (1: off), got {self.dwell_frames}")
         if self.hand_mask_dilate_px < 0:
             raise HandConversionError(f"hand_mask_dilate_px must be non-negative, got {self.hand_mask_dilate_px}")
 
@@ -121,7 +125,7 @@ def map_recording(recording: HandRecording, settings: HandConvertSettings) -> Ha
             valid &= recording.handedness == settings.hand
     try:
         trajectory = map_hand_to_gripper(landmarks_world, settings.mapping, valid, settings.window_frames,
-                                         settings.aperture_window_frames)
+                                         settings.aperture_window_frames, settings.dwell_frames)
     except HandGapError as error:
         raise HandGapError(f"{recording.name}: {error}") from error
     return HandEpisode(recording, landmarks_world, trajectory)

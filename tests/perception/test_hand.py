@@ -174,6 +174,37 @@ def test_an_aperture_median_ignores_one_noisy_frame_and_keeps_a_steady_close_in_
         map_hand_to_gripper(landmarks, config, aperture_window_frames=4)
 
 
+def test_a_dwell_averages_the_poses_a_grasp_and_a_release_happen_at():
+    """A hand sweeping, then holding still over 6 frames at a grasp and 6 at a release: with ``dwell_frames`` 4 the 4
+    frames from each change share the mean of their poses under 5 mm landmark noise, at under 0.7 of the
+    frame-by-frame error over 100 such demonstrations, every other frame as mapped frame by frame; 0 is refused."""
+    sweep = smooth_poses(30)
+    T_world_ee = np.concatenate([sweep[:10], np.repeat(sweep[10:11], 6, axis=0), sweep[10:20],
+                                 np.repeat(sweep[20:21], 6, axis=0), sweep[20:]])
+    apertures = np.full(len(T_world_ee), 0.1)
+    apertures[10:26] = 0.01  # closed from the first still frame of the grasp to the first of the release
+    config = HandMappingConfig(close_below_m=0.035, open_above_m=0.075, gripper_hold_frames=1)
+    errors = {1: [], 4: []}
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        landmarks = landmarks_from_gripper(T_world_ee, apertures, rng, noise_m=0.005)
+        raw, held = (map_hand_to_gripper(landmarks, config, aperture_window_frames=5, dwell_frames=dwell)
+                     for dwell in (1, 4))
+        np.testing.assert_array_equal(held.gripper_open, raw.gripper_open)
+        changes = np.flatnonzero(np.diff(raw.gripper_open)) + 1
+        assert len(changes) == 2 and np.all(np.abs(changes - (10, 26)) <= 1)
+        dwelling = np.concatenate([np.arange(change, change + 4) for change in changes])
+        np.testing.assert_array_equal(held.T_world_ee[np.setdiff1d(np.arange(len(T_world_ee)), dwelling)],
+                                      raw.T_world_ee[np.setdiff1d(np.arange(len(T_world_ee)), dwelling)])
+        for change in changes:
+            np.testing.assert_allclose(held.T_world_ee[change:change + 4], held.T_world_ee[change][None].repeat(4, 0))
+        for dwell, trajectory in ((1, raw), (4, held)):
+            errors[dwell].append(pose_distance(trajectory.T_world_ee[changes], T_world_ee[changes])[0])
+    assert np.median(errors[4]) < 0.7 * np.median(errors[1])
+    with pytest.raises(ValueError, match="dwell_frames"):
+        map_hand_to_gripper(landmarks, config, dwell_frames=0)
+
+
 def test_nan_frames_are_marked_and_bridged_without_a_jump():
     T_world_ee = smooth_poses(20)
     landmarks = landmarks_from_gripper(T_world_ee, 0.06)

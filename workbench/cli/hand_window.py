@@ -20,15 +20,16 @@ def _ints(text: str) -> list[int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m workbench.cli.hand_window",
                                      description="The hand mapping's error against the simulated hand's truth, per "
-                                     "landmark window, aperture window and gripper debounce.")
+                                     "landmark window, aperture window, gripper debounce and dwell.")
     parser.add_argument("--tasks", default="pick_and_lift,lift_lid,put_in_tray")
     parser.add_argument("--seeds", type=_ints, default=list(range(6)), help="dev seeds: 0-5 or 0,1,2")
     parser.add_argument("--windows", type=_ints, default=[1], help="landmark windows (odd)")
     parser.add_argument("--aperture-windows", type=_ints, default=[1, 3, 5, 7], help="aperture median windows (odd)")
     parser.add_argument("--holds", type=_ints, default=[1, 2, 3], help="gripper debounces (gripper_hold_frames)")
+    parser.add_argument("--dwells", type=_ints, default=[1], help="frames held still from each gripper change")
     args = parser.parse_args(argv)
-    print(json.dumps(window_errors(args.tasks.split(","), args.seeds, args.windows, args.aperture_windows, args.holds),
-                     indent=2))
+    print(json.dumps(window_errors(args.tasks.split(","), args.seeds, args.windows, args.aperture_windows, args.holds,
+                                   args.dwells), indent=2))
     return 0
 
 
