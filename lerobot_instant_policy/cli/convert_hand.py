@@ -8,7 +8,8 @@ data contract, the hand read as the gripper (docs/deployment.md section 8).
 ``--recordings``: one recording folder or a folder of them (format: ``perception.hand_recording``), one episode each.
 ``--detector-model``: run MediaPipe's hand landmarker (the ``hand`` extra) on every recording first and write its
 image landmarks into them (``--redetect``: also on recordings that have landmarks); ``--detect-only`` stops there.
-The conversion itself is :mod:`lerobot_instant_policy.perception.hand_convert`.
+A recording that carries ``object_mask`` (a segmenter's task-object pixels) is segmented by it; one without, by the
+table plane. The conversion itself is :mod:`lerobot_instant_policy.perception.hand_convert`.
 """
 
 from __future__ import annotations
