@@ -39,10 +39,9 @@ def window_errors(tasks: list[str], seeds: list[int], windows: list[int], apertu
                   holds: list[int], dwells: list[int] = (1,)) -> dict:
     """Per (landmark window, aperture window, debounce, dwell): the median and 90th percentile of the position (mm)
     and rotation (degrees) errors over every frame of every demonstration, their medians at the mapped changes, the
-    share of frames whose gripper differs from
-    the command, the changes beyond the command's per demonstration, the demonstrations whose changes match the
-    command's in number and the median and largest delay of their changes (frames); demonstrations whose mapping
-    refuses a gap are counted apart."""
+    share of frames whose gripper differs from the command, the changes beyond the command's per demonstration, the
+    demonstrations whose changes match the command's in number and the median and largest delay of their changes
+    (frames); demonstrations whose mapping refuses a gap are counted apart."""
     settings = [(w, a, k, d) for w in windows for a in aperture_windows for k in holds for d in dwells]
     records = {setting: {"position_mm": [], "rotation_deg": [], "changes": [], "wrong_gripper": [],
                          "extra_changes": [], "delays": [], "matched": 0, "gaps": 0} for setting in settings}

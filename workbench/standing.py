@@ -257,12 +257,13 @@ def validation_sets(config: StandingConfig, root: Path) -> dict[str, subprocess.
     return processes
 
 
-def wait_for(generating: dict[str, subprocess.Popen | None]) -> None:
-    """Wait for :func:`validation_sets`' processes; ``StandingError`` with the tail of its log where one failed."""
+def wait_for(generating: dict[str, subprocess.Popen | None], root: Path) -> None:
+    """Wait for :func:`validation_sets`' processes under ``root``; ``StandingError`` with the tail of its log where
+    one failed."""
     for name, process in generating.items():
         if process is not None and process.wait() != 0:
-            log = Path(process.args[process.args.index("--out") + 1]).with_suffix(".log")
-            raise StandingError(f"generating the {name} validation set failed: {log.read_text()[-2000:]}")
+            log = (root / f"{name}.log").read_text()
+            raise StandingError(f"generating the {name} validation set failed: {log[-2000:]}")
 
 
 def figures(result: dict) -> dict:
@@ -360,7 +361,7 @@ def compare(config: StandingConfig, checkpoints: list[Path], root: Path) -> dict
     if not checkpoints:
         raise ValueError("compare needs at least one checkpoint")
     models = [model_dir(checkpoint) for checkpoint in checkpoints]
-    wait_for(validation_sets(config, root))
+    wait_for(validation_sets(config, root), root)
     records = [validation_record(validate(config, model, root)) for model in models]
     rows = [{"checkpoint": str(model), "validation": record["validation"],
              "against_reference": paired_against(record, records[0]) if index else None}
@@ -463,8 +464,9 @@ def conclude(config: StandingConfig, train_dir: Path, start: Path | None, starte
     if not saves:
         raise StandingError(f"no save completed before the deadline; training log:\n{log_path.read_text()[-3000:]}")
     save = saves[-1]
-    wait_for(generating if generating is not None else validation_sets(config, work / "validation"))
-    results = validate(config, save / MODEL_DIR, work / "validation")
+    validation = work / "validation"
+    wait_for(generating if generating is not None else validation_sets(config, validation), validation)
+    results = validate(config, save / MODEL_DIR, validation)
     pool = json.loads((save / POOL_STATE).read_text())["stats"]
     steps = step_of(save) - start_step
     samples, tasks = steps * config.batch_size, pool["distinct_tasks_used"]
@@ -608,7 +610,7 @@ def accept(folder: Path, standing: Path = STANDING, curve_file: Path = CURVE_FIL
     if beats_shipped(entry) is None:
         config = StandingConfig(**{**entry["config"], "device": "cpu", "out": None})
         root = Path(config.work) / "validation"
-        wait_for(validation_sets(config, root))
+        wait_for(validation_sets(config, root), root)
         entry["against_shipped"] = compare_with_shipped(config, entry, root, standing)
         (unpacked / RECORD).write_text(json.dumps(record, indent=2))
     return keep(unpacked, standing, curve_file)

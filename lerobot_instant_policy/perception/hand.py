@@ -246,8 +246,7 @@ def hold_still_at_changes(T_world_ee: np.ndarray, gripper_open: np.ndarray, foun
     on (fewer where the next change or the end comes first) replaced by the mean of the ``found (T,)`` ones among
     them: positions averaged, rotations by their chordal mean (``scipy``'s ``Rotation.mean``). ``dwell_frames`` 1:
     unchanged."""
-    if dwell_frames < 1 or int(dwell_frames) != dwell_frames:
-        raise ValueError(f"dwell_frames must be an integer >= 1 (1: off), got {dwell_frames}")
+    check_dwell_frames(dwell_frames)
     T_world_ee = T_world_ee.copy()
     changes = np.flatnonzero(np.diff(gripper_open)) + 1
     ends = np.minimum(changes + dwell_frames, np.append(changes[1:], len(T_world_ee)))
@@ -278,16 +277,23 @@ def date_gripper_changes_back(gripper_open: np.ndarray, aperture: np.ndarray, co
     return gripper_open
 
 
-def _check_window(window_frames: int) -> None:
-    """``ValueError`` unless ``window_frames`` is an odd number >= 1 (a centred window; 1: off)."""
+def check_window(window_frames: int, name: str = "window_frames") -> None:
+    """``ValueError`` unless ``window_frames`` (called ``name`` in the message) is an odd number >= 1 (a centred
+    window; 1: off)."""
     if window_frames < 1 or window_frames % 2 == 0:
-        raise ValueError(f"window_frames must be an odd number >= 1 (1: off), got {window_frames}")
+        raise ValueError(f"{name} must be an odd number >= 1 (1: off), got {window_frames}")
+
+
+def check_dwell_frames(dwell_frames: int) -> None:
+    """``ValueError`` unless ``dwell_frames`` is an integer >= 1 (1: off)."""
+    if dwell_frames < 1 or int(dwell_frames) != dwell_frames:
+        raise ValueError(f"dwell_frames must be an integer >= 1 (1: off), got {dwell_frames}")
 
 
 def centred_median(values: np.ndarray, window_frames: int) -> np.ndarray:
     """``values (T,)`` with each replaced by the median of the finite ones among the ``window_frames`` (odd, positive)
     centred on it (fewer at the ends; NaN where none is finite)."""
-    _check_window(window_frames)
+    check_window(window_frames)
     half = window_frames // 2
     padded = np.concatenate([np.full(half, np.nan), values, np.full(half, np.nan)])
     with warnings.catch_warnings():
@@ -299,7 +305,7 @@ def centred_landmark_mean(landmarks_world: np.ndarray, valid: np.ndarray, window
     """``landmarks_world (T, 21, 3)`` with each finite landmark of a ``valid (T,)`` frame replaced by its mean over the
     valid frames among the ``window_frames`` (odd, positive) centred on it where it is finite (fewer at the ends); a
     missing (NaN) landmark, and every landmark of an invalid frame, stay as they were."""
-    _check_window(window_frames)
+    check_window(window_frames)
     seen = valid[:, None, None] & np.isfinite(landmarks_world)
     half, frames = window_frames // 2, len(landmarks_world)
     zero = np.zeros((1, *landmarks_world.shape[1:]))

@@ -41,6 +41,8 @@ from .hand import (
     HandGapError,
     HandMappingConfig,
     HandTrajectory,
+    check_dwell_frames,
+    check_window,
     lift_image_landmarks,
     map_hand_to_gripper,
 )
@@ -92,11 +94,12 @@ class HandConvertSettings:
             raise HandConversionError(f"min_hand_score must be in [0, 1], got {self.min_hand_score}")
         if self.hand_radius_m <= 0 or self.num_points <= 0:
             raise HandConversionError("hand_radius_m and num_points must be positive")
-        for name in ("window_frames", "aperture_window_frames"):
-            if getattr(self, name) < 1 or getattr(self, name) % 2 == 0:
-                raise HandConversionError(f"{name} must be an odd number >= 1 (1: off), got {getattr(self, name)}")
-        if self.dwell_frames < 1:
-            raise HandConversionError(f"dwell_frames must be >= 1 (1: off), got {self.dwell_frames}")
+        try:  # the mapping's own checks, before any recording is read
+            check_window(self.window_frames, "window_frames")
+            check_window(self.aperture_window_frames, "aperture_window_frames")
+            check_dwell_frames(self.dwell_frames)
+        except ValueError as error:
+            raise HandConversionError(str(error)) from error
         if self.hand_mask_dilate_px < 0:
             raise HandConversionError(f"hand_mask_dilate_px must be non-negative, got {self.hand_mask_dilate_px}")
 

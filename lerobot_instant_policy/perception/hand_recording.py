@@ -49,6 +49,7 @@ LANDMARK_KINDS = ("none", "image", "world")
 HANDEDNESS = ("Left", "Right", "")
 _ARRAYS = {"none": (), "image": ("landmarks_px", "handedness", "hand_score"), "world": ("landmarks_world",)}
 _METADATA_KEYS = ("format", "version", "task", "fps", "depth_unit", "landmarks", "hand_camera")
+_MASKS = ("hand_mask", "object_mask")  # optional per-pixel masks, (T, C, H, W) bool
 
 
 class HandRecordingError(ValueError):
@@ -135,7 +136,7 @@ class HandRecording:
                                      f"{self.hand_camera!r}")
         self.hand_camera = int(self.hand_camera)
         self._validate_landmarks(frames)
-        for name in ("hand_mask", "object_mask"):
+        for name in _MASKS:
             if getattr(self, name) is not None:
                 setattr(self, name, _array(getattr(self, name), where, name, 4, "(T, C, H, W)", self.depth.shape) != 0)
         self._validate_cameras()
@@ -221,8 +222,7 @@ def save_hand_recording(recording: HandRecording, folder: str | Path, overwrite:
         arrays = {"rgb": recording.rgb, "depth": recording.depth, "intrinsics": recording.intrinsics,
                   "T_world_camera": recording.T_world_camera}
         arrays.update({name: getattr(recording, name) for name in _ARRAYS[recording.landmarks]})
-        arrays.update({name: getattr(recording, name) for name in ("hand_mask", "object_mask")
-                       if getattr(recording, name) is not None})
+        arrays.update({name: getattr(recording, name) for name in _MASKS if getattr(recording, name) is not None})
         np.savez_compressed(staging / FRAMES_FILE, **arrays)
         if folder.exists():
             shutil.rmtree(folder)

@@ -259,10 +259,10 @@ def _with_marker(recording: HandRecording, lift: np.ndarray) -> HandRecording:
     marker[:, 2] = MARKER_HIGH[2]
     v, u = np.mgrid[0:HEIGHT, 0:WIDTH]
     rays = np.stack([(u - INTRINSICS[0, 2]) / FOCAL, (v - INTRINSICS[1, 2]) / FOCAL, np.ones_like(u, float)], axis=-1)
+    drawn = _depth_image(marker)
     depths, masks = [], []
     for frame in range(recording.num_frames):
         depth = recording.depth[frame, 0].astype(np.float64)
-        drawn = _depth_image(marker)
         depth = np.where((drawn > 0) & ((depth == 0) | (drawn < depth)), drawn, depth)
         world = transform_points(T_WORLD_CAMERA, (rays * depth[..., None]).reshape(-1, 3)).reshape(HEIGHT, WIDTH, 3)
         # a pixel spans about 5 mm here, and its back-projected point lies up to that far off the surface it saw

@@ -476,5 +476,5 @@ def test_validation_generators_that_print_much_do_not_block(tmp_path, monkeypatc
     monkeypatch.setattr(standing_module, "program", lambda name: [sys.executable, "-c", speak])
     generating = standing_module.validation_sets(StandingConfig(), tmp_path)
     with pytest.raises(standing_module.StandingError, match="one_layout validation set failed: x+$"):
-        standing_module.wait_for(generating)
+        standing_module.wait_for(generating, tmp_path)
     assert (tmp_path / "moved.log").stat().st_size == 400_000
