@@ -151,7 +151,7 @@ def test_the_objects_mask_keeps_slide_blocks_flat_target(tmp_path):
 def test_noisy_demonstrations_convert_and_replay_as_context(tmp_path, capsys):
     out = tmp_path / "hand"
     assert record_main(["--demonstrator", "hand", "--task", "push_button", "--episodes", "2", "--out", str(out),
-                        "--repo-id", "local/push_button", "--seed", "0", "--hand-drop-probability", "0.1"]) == 0
+                        "--repo-id", "local/push_button", "--seed", "0", "--hand-drop-probability", "0.3"]) == 0
     assert "wrote 2 hand demonstrations" in capsys.readouterr().out
     demonstrations = load_demonstrations("local/push_button", out, "push_button", 2)
     recordings = [load_hand_recording(folder) for folder in find_hand_recordings(tmp_path / "hand-recordings")]
