@@ -52,6 +52,8 @@ logger = logging.getLogger(__name__)
 PACKAGE_DIR = Path(__file__).resolve().parent
 SHIPPED_ENCODER_DIR = PACKAGE_DIR / "assets" / "encoder"
 SHIPPED_CHECKPOINT = PACKAGE_DIR / "assets" / "checkpoints" / "instant_policy"  # the pretrained_model these defaults describe
+# the same weights run from the per-object replay of the first demonstration (replay_init_strength 0.125, K = 8)
+SHIPPED_REPLAY_PRIOR_CHECKPOINT = PACKAGE_DIR / "assets" / "checkpoints" / "instant_policy_replay_prior"
 
 DEFAULT_GRIPPER_KEYPOINTS = GRIPPER_KEYPOINTS
 

@@ -11,7 +11,11 @@ import pytest
 import torch
 
 from lerobot_instant_policy.cli.generate import main as generate_main
-from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT, InstantPolicyConfig
+from lerobot_instant_policy.configuration_instant_policy import (
+    SHIPPED_CHECKPOINT,
+    SHIPPED_REPLAY_PRIOR_CHECKPOINT,
+    InstantPolicyConfig,
+)
 from lerobot_instant_policy.evaluation.checkpoints import Checkpoint, load_checkpoint
 from lerobot_instant_policy.evaluation.loss_curve import evaluate_loss, load_evaluation_set
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
@@ -33,6 +37,26 @@ def test_the_checkpoint_is_complete_small_and_documented():
     assert config["demo_root"] is None and config["encoder_weights"] is None  # nothing machine-specific to load
     card = (SHIPPED / "README.md").read_text()
     for fact in ("pseudo-demonstrations", "## Data", "## Training", "steps", "CPU", "## Results"):
+        assert fact in card, f"the model card does not state {fact!r}"
+
+
+def test_the_replay_prior_checkpoint_is_the_shipped_weights_run_from_the_replay():
+    """``instant_policy_replay_prior``: the shipped network with the option's inference settings in its config, so that
+    ``--policy.path`` alone runs it from the per-object replay (``make demo`` runs it through ``lerobot-eval``:
+    test_eval_suite.py). Its card says its weights are the faithful checkpoint's: a new faithful checkpoint must
+    bring its own measured replay-prior one or say otherwise."""
+    names = {path.name for path in SHIPPED_REPLAY_PRIOR_CHECKPOINT.iterdir()}
+    assert names == {path.name for path in SHIPPED.iterdir()}
+    assert (SHIPPED_REPLAY_PRIOR_CHECKPOINT / "model.safetensors").read_bytes() == (
+        SHIPPED / "model.safetensors").read_bytes()
+    option, faithful = (InstantPolicyConfig.from_pretrained(path) for path in (SHIPPED_REPLAY_PRIOR_CHECKPOINT, SHIPPED))
+    assert (option.replay_init_strength, option.inference_steps, option.replay_per_object) == (0.125, 8, True)
+    assert (faithful.replay_init_strength, faithful.replay_per_object) == (None, False)
+    differing = {field.name for field in dataclasses.fields(option)
+                 if getattr(option, field.name) != getattr(faithful, field.name)}
+    assert differing == {"replay_init_strength", "inference_steps", "replay_per_object"}
+    card = (SHIPPED_REPLAY_PRIOR_CHECKPOINT / "README.md").read_text()
+    for fact in ("replay_init_strength", "## When to use it", "## Results", "test split", "MT10"):
         assert fact in card, f"the model card does not state {fact!r}"
 
 

@@ -1,8 +1,10 @@
 """``lerobot-ip-demo`` (``make demo``): teach one ``bullet_tabletop`` task with 2 demonstrations and evaluate
 (``evaluation.demo``).
 
-Runs ``instant_policy`` (when a checkpoint is present: ``--checkpoint``, default the one shipped in the package) and
-the classical ``demo_replay`` baseline for ``--episodes`` episodes each through ``lerobot-eval``, on the same scenes.
+Runs ``instant_policy`` the paper's way (``--checkpoint``, default the one shipped in the package), the same network
+run from the per-object replay of its demonstrations (``--replay-prior-checkpoint``, default the one shipped beside
+it), each when present, and the classical ``demo_replay`` baseline for ``--episodes`` episodes each through
+``lerobot-eval``, on the same scenes.
 Prints their success per episode side by side and writes a contact sheet (first and last frame of every episode,
 framed by its outcome) beside the videos. Exits with 1 when a policy that reads the demonstrations failed every
 episode.
@@ -14,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..configuration_instant_policy import SHIPPED_CHECKPOINT
+from ..configuration_instant_policy import SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PRIOR_CHECKPOINT
 from ..evaluation.demo import (
     DEFAULT_TASK,
     POLICY_CHOICES,
@@ -31,13 +33,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", default=DEFAULT_TASK)
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--batch-size", type=int, default=2)
-    parser.add_argument("--checkpoint", type=Path, default=SHIPPED_CHECKPOINT, help="instant_policy pretrained_model")
+    parser.add_argument("--checkpoint", type=Path, default=SHIPPED_CHECKPOINT,
+                        help="instant_policy pretrained_model run the paper's way (from pure noise)")
+    parser.add_argument("--replay-prior-checkpoint", type=Path, default=SHIPPED_REPLAY_PRIOR_CHECKPOINT,
+                        help="instant_policy pretrained_model whose config runs it from the replay prior")
     parser.add_argument("--policy", choices=POLICY_CHOICES, default="auto",
-                        help="auto: instant_policy from --checkpoint (when there is one) and demo_replay, side by side")
+                        help="auto: instant_policy from both checkpoints (those present) and demo_replay, side by side")
     parser.add_argument("--out", type=Path, default=Path("outputs/demo"))
     args = parser.parse_args(argv)
-    policies, reason = policies_to_run(args.policy, args.checkpoint)
-    print(f"policies: {', '.join(policy for policy, _ in policies)} ({reason})", flush=True)
+    policies, reason = policies_to_run(args.policy, args.checkpoint, args.replay_prior_checkpoint)
+    print(f"policies: {', '.join(column.name for column in policies)} ({reason})", flush=True)
     try:
         outcomes = run_demo(args.task, policies, args.episodes, args.batch_size, args.out,
                             report=lambda line: print(line, flush=True))

@@ -1,20 +1,32 @@
 """``make demo``: teach one ``bullet_tabletop`` task with 2 demonstrations and evaluate, policies side by side.
 
-Records 2 scripted demonstrations of the task and runs ``instant_policy`` (when a checkpoint is present, by default
-the one shipped in the package) and the classical ``demo_replay`` baseline through ``lerobot-eval`` on the same
-scenes (the same seeds); ``evaluation.side_by_side`` tabulates their episodes and draws the contact sheet.
+Records 2 scripted demonstrations of the task and runs, through ``lerobot-eval`` on the same scenes (the same seeds),
+``instant_policy`` the paper's way (from pure noise) and from the per-object replay of its demonstrations (the two
+checkpoints shipped in the package, when present) and the classical ``demo_replay`` baseline;
+``evaluation.side_by_side`` tabulates their episodes and draws the contact sheet.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from .side_by_side import EpisodeOutcome, episode_outcomes, success_percent
 from .suite import SuiteSettings, run_task
 
 DEFAULT_TASK = "pick_and_lift"
-POLICY_CHOICES = ("auto", "instant_policy", "demo_replay", "do_nothing")
+REPLAY_PRIOR = "instant_policy_replay_prior"  # the demo's name for instant_policy run from the replay prior
+POLICY_CHOICES = ("auto", "instant_policy", REPLAY_PRIOR, "demo_replay", "do_nothing")
+
+
+@dataclass(frozen=True)
+class DemoPolicy:
+    """One column of the demo: its ``name`` (the run's name), the ``lerobot-eval`` policy type and its checkpoint."""
+
+    name: str
+    policy: str
+    checkpoint: str | None = None
 
 
 def best_policy(checkpoint: Path) -> tuple[str, str | None, str]:
@@ -28,27 +40,37 @@ def best_policy(checkpoint: Path) -> tuple[str, str | None, str]:
     return "instant_policy", str(checkpoint), f"checkpoint {checkpoint}"
 
 
-def policies_to_run(choice: str, checkpoint: Path) -> tuple[list[tuple[str, str | None]], str]:
-    """``([(policy type, checkpoint or None), ...], reason)``: ``auto`` runs ``instant_policy`` (when a checkpoint
-    and the policy are there) beside ``demo_replay`` on the same scenes; any other choice runs that policy alone."""
+def policies_to_run(choice: str, checkpoint: Path, replay_prior_checkpoint: Path) -> tuple[list[DemoPolicy], str]:
+    """``([DemoPolicy, ...], reason)``: ``auto`` runs ``instant_policy`` from ``checkpoint`` (the paper's inference)
+    and from ``replay_prior_checkpoint`` (the same network run from the per-object replay), each when it is there,
+    beside ``demo_replay`` on the same scenes; any other choice runs that policy alone."""
+    if choice == "instant_policy":
+        return [DemoPolicy(choice, choice, str(checkpoint))], "--policy"
+    if choice == REPLAY_PRIOR:
+        return [DemoPolicy(choice, "instant_policy", str(replay_prior_checkpoint))], "--policy"
     if choice != "auto":
-        return [(choice, str(checkpoint) if choice == "instant_policy" else None)], "--policy"
-    policy, policy_path, reason = best_policy(checkpoint)
-    return ([(policy, policy_path)] if policy == "instant_policy" else []) + [("demo_replay", None)], reason
+        return [DemoPolicy(choice, choice)], "--policy"
+    policies, reasons = [], []
+    for name, path in (("instant_policy", checkpoint), (REPLAY_PRIOR, replay_prior_checkpoint)):
+        policy, policy_path, reason = best_policy(path)
+        reasons.append(f"{name}: {reason}")
+        if policy == "instant_policy":
+            policies.append(DemoPolicy(name, policy, policy_path))
+    return policies + [DemoPolicy("demo_replay", "demo_replay")], "; ".join(reasons)
 
 
-def run_demo(task: str, policies: list[tuple[str, str | None]], episodes: int, batch_size: int, out: Path,
+def run_demo(task: str, policies: list[DemoPolicy], episodes: int, batch_size: int, out: Path,
              report: Callable[[str], None] = print) -> dict[str, list[EpisodeOutcome]]:
-    """Each ``(policy, checkpoint)`` on ``task`` for ``episodes`` episodes (one demonstration set, the same seeds for
-    all); returns each policy's episodes in order."""
+    """Each policy on ``task`` for ``episodes`` episodes (one demonstration set, the same seeds for all); returns
+    each policy's episodes in order, by its name."""
     outcomes: dict[str, list[EpisodeOutcome]] = {}
-    for policy, policy_path in policies:
-        settings = SuiteSettings(policy=policy, policy_path=policy_path, out=out, episodes=episodes, demo_sets=1,
-                                 batch_size=batch_size)
+    for column in policies:
+        settings = SuiteSettings(policy=column.policy, policy_path=column.checkpoint, out=out, episodes=episodes,
+                                 demo_sets=1, batch_size=batch_size, run_name=column.name)
         settings.validate()
-        outcomes[policy] = episode_outcomes(run_task(settings, task), settings.eval_seed_of(0))
-        report(f"task {task}: {policy} succeeded in {success_percent(outcomes[policy]):.0f}% of "
-               f"{len(outcomes[policy])} episodes")
+        outcomes[column.name] = episode_outcomes(run_task(settings, task), settings.eval_seed_of(0))
+        report(f"task {task}: {column.name} succeeded in {success_percent(outcomes[column.name]):.0f}% of "
+               f"{len(outcomes[column.name])} episodes")
     return outcomes
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from lerobot_instant_policy.cli import demo as demo_cli
 from lerobot_instant_policy.cli import eval_suite
-from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
+from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PRIOR_CHECKPOINT
 from lerobot_instant_policy.evaluation import demo, side_by_side, suite
 from lerobot_instant_policy.evaluation.success_table import TASK_GROUPS, task_group
 from lerobot_instant_policy.evaluation.suite import SuiteError, SuiteSettings
@@ -135,10 +135,10 @@ def test_best_policy_falls_back_to_demo_replay_without_a_checkpoint(tmp_path):
 
 
 def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_path, capsys, monkeypatch):
-    """``make demo``'s path on a fresh clone (its task, the shipped checkpoint through ``--policy.path`` beside
+    """``make demo``'s path on a fresh clone (its task, the two shipped checkpoints through ``--policy.path`` beside
     ``demo_replay``, each a real ``lerobot-eval`` process): given 2 demonstrations, the shipped checkpoint lifts the
-    object (one episode, seed 1000: it did in 20 of 20 suite episodes); a policy that failed every episode makes the
-    demo exit with 1. Neither ``lerobot-eval`` prints a traceback, and the ``demo_replay`` one, which opens a LeRobot
+    object the paper's way and from the replay prior (one episode, seed 1000); a policy that failed every episode
+    makes the demo exit with 1. Neither ``lerobot-eval`` prints a traceback, and the ``demo_replay`` one, which opens a LeRobot
     dataset and so probes LeRobot's video backend, says the probe's one line where no system FFmpeg is found (issue
     15: ``test_clean_output.py``)."""
     import subprocess
@@ -146,24 +146,26 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
     from lerobot_instant_policy import video_backend
 
     assert demo.best_policy(SHIPPED_CHECKPOINT)[:2] == ("instant_policy", str(SHIPPED_CHECKPOINT))
+    names = {str(SHIPPED_CHECKPOINT): "instant_policy", str(SHIPPED_REPLAY_PRIOR_CHECKPOINT): demo.REPLAY_PRIOR}
     outputs = {}
 
     def run_keeping_output(command, **kwargs):
         completed = subprocess.run(command, **kwargs)
         policy = next(arg.split("=", 1)[1] for arg in command if arg.startswith(("--policy.type=", "--policy.path=")))
-        outputs["instant_policy" if policy == str(SHIPPED_CHECKPOINT) else policy] = completed.stdout + completed.stderr
+        outputs[names.get(policy, policy)] = completed.stdout + completed.stderr
         return completed
 
     monkeypatch.setattr(suite, "subprocess", types.SimpleNamespace(run=run_keeping_output))
     code = demo_cli.main(["--episodes", "1", "--out", str(tmp_path)])
     captured = capsys.readouterr()
     assert code == 0, captured.out + captured.err
-    assert "policies: instant_policy, demo_replay" in captured.out
+    assert f"policies: instant_policy, {demo.REPLAY_PRIOR}, demo_replay" in captured.out
     runs = {path.relative_to(tmp_path / "runs").parts[0]: json.loads(path.read_text())
             for path in tmp_path.rglob("eval_info.json")}
-    assert set(runs) == {"instant_policy", "demo_replay"} == set(outputs), sorted(runs)
-    assert runs["instant_policy"]["per_task"][0]["metrics"]["successes"] == [True]
-    assert f"task {demo.DEFAULT_TASK}: instant_policy succeeded in 100% of 1 episodes" in captured.out
+    assert set(runs) == {"instant_policy", demo.REPLAY_PRIOR, "demo_replay"} == set(outputs), sorted(runs)
+    for name in ("instant_policy", demo.REPLAY_PRIOR):
+        assert runs[name]["per_task"][0]["metrics"]["successes"] == [True]
+        assert f"task {demo.DEFAULT_TASK}: {name} succeeded in 100% of 1 episodes" in captured.out
     for info in runs.values():
         assert info["overall"]["n_episodes"] == 1
         assert [entry["task_group"] for entry in info["per_task"]] == [demo.DEFAULT_TASK]
@@ -177,7 +179,7 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
     # the side-by-side table: one row per episode with its seed and each policy's outcome
     replay = runs["demo_replay"]["per_task"][0]["metrics"]["successes"]
     rows = [line.split() for line in captured.out.splitlines() if line.split()[:1] in (["0"], ["1"])]
-    assert rows == [[str(index), str(1000 + index), "success", "success" if success else "fail"]
+    assert rows == [[str(index), str(1000 + index), "success", "success", "success" if success else "fail"]
                     for index, success in enumerate(replay)]
     sheet = tmp_path / f"contact_sheet_{demo.DEFAULT_TASK}.png"
     assert f"contact sheet (first and last frame of every episode): {sheet}" in captured.out
@@ -190,11 +192,19 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
 
 
 def test_auto_demo_runs_instant_policy_beside_demo_replay(tmp_path):
-    policies, _ = demo.policies_to_run("auto", SHIPPED_CHECKPOINT)
-    assert policies == [("instant_policy", str(SHIPPED_CHECKPOINT)), ("demo_replay", None)]
-    policies, reason = demo.policies_to_run("auto", tmp_path / "no_checkpoint")
-    assert policies == [("demo_replay", None)] and "no instant_policy checkpoint" in reason
-    assert demo.policies_to_run("do_nothing", SHIPPED_CHECKPOINT)[0] == [("do_nothing", None)]
+    policies, _ = demo.policies_to_run("auto", SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PRIOR_CHECKPOINT)
+    assert policies == [demo.DemoPolicy("instant_policy", "instant_policy", str(SHIPPED_CHECKPOINT)),
+                        demo.DemoPolicy(demo.REPLAY_PRIOR, "instant_policy", str(SHIPPED_REPLAY_PRIOR_CHECKPOINT)),
+                        demo.DemoPolicy("demo_replay", "demo_replay")]
+    policies, reason = demo.policies_to_run("auto", tmp_path / "none", SHIPPED_REPLAY_PRIOR_CHECKPOINT)
+    assert [column.name for column in policies] == [demo.REPLAY_PRIOR, "demo_replay"]
+    assert f"instant_policy: no instant_policy checkpoint at {tmp_path / 'none'}" in reason
+    policies, reason = demo.policies_to_run("auto", tmp_path / "none", tmp_path / "none")
+    assert policies == [demo.DemoPolicy("demo_replay", "demo_replay")]
+    assert demo.policies_to_run("do_nothing", SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PRIOR_CHECKPOINT)[0] == [
+        demo.DemoPolicy("do_nothing", "do_nothing")]
+    assert demo.policies_to_run(demo.REPLAY_PRIOR, SHIPPED_CHECKPOINT, tmp_path / "mine")[0] == [
+        demo.DemoPolicy(demo.REPLAY_PRIOR, "instant_policy", str(tmp_path / "mine"))]
 
 
 def test_summary_table_and_outcomes_from_eval_info(tmp_path):
