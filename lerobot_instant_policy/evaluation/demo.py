@@ -44,14 +44,13 @@ def policies_to_run(choice: str, checkpoint: Path, replay_prior_checkpoint: Path
     """``([DemoPolicy, ...], reason)``: ``auto`` runs ``instant_policy`` from ``checkpoint`` (the paper's inference)
     and from ``replay_prior_checkpoint`` (the same network run from the per-object replay), each when it is there,
     beside ``demo_replay`` on the same scenes; any other choice runs that policy alone."""
-    if choice == "instant_policy":
-        return [DemoPolicy(choice, choice, str(checkpoint))], "--policy"
-    if choice == REPLAY_PRIOR:
-        return [DemoPolicy(choice, "instant_policy", str(replay_prior_checkpoint))], "--policy"
+    checkpoints = {"instant_policy": checkpoint, REPLAY_PRIOR: replay_prior_checkpoint}
+    if choice in checkpoints:
+        return [DemoPolicy(choice, "instant_policy", str(checkpoints[choice]))], "--policy"
     if choice != "auto":
         return [DemoPolicy(choice, choice)], "--policy"
     policies, reasons = [], []
-    for name, path in (("instant_policy", checkpoint), (REPLAY_PRIOR, replay_prior_checkpoint)):
+    for name, path in checkpoints.items():
         policy, policy_path, reason = best_policy(path)
         reasons.append(f"{name}: {reason}")
         if policy == "instant_policy":
