@@ -46,6 +46,8 @@ CONDITIONS = {
                                         "one)"),
     "policy_options": ("policy_options", "the --policy.KEY=VALUE overrides (compared between columns of the same "
                                          "policy)"),
+    "language_head": ("language_head_sha256", "the SHA-256 of the language head's files (compared between columns "
+                                              "that say tasks in words)"),
     "success": ("success", "the success criterion (held, instant, or MetaWorld's own flag)"),
     "hold_steps": ("hold_steps", "the steps the goal state must hold"),
     "episode_length": ("episode_length", "the step limit of an episode"),
@@ -63,6 +65,7 @@ SETTING_CONDITIONS = {"policy_args": "policy_options", "success": "success", "en
 # from its column in those named.
 SETTING_ALLOWANCES = {**SETTING_CONDITIONS, "policy_path": "checkpoint"}
 CHECKPOINT_SKIPPED = ("README.md", "train_config.json")  # a checkpoint's model card and training record
+LANGUAGE_CONTEXT_ARG = "--policy.context=language"  # instant_policy reads the env's task in words instead
 
 
 class ManifestError(ValueError):
@@ -108,9 +111,9 @@ def demo_fingerprint(demos: Path) -> str:
 
 
 def checkpoint_fingerprint(checkpoint: Path) -> str:
-    """SHA-256 (hex) of a pretrained_model directory: every file by relative path and bytes but the model card and
-    the training record (``CHECKPOINT_SKIPPED``), which no evaluation reads. ``FileNotFoundError`` when it holds
-    no file."""
+    """SHA-256 (hex) of a pretrained_model directory, or of a language head's: every file by relative path and bytes
+    but the model card and the training record (``CHECKPOINT_SKIPPED``), which no evaluation reads.
+    ``FileNotFoundError`` when it holds no file."""
     files = sorted(path for path in checkpoint.rglob("*") if path.is_file() and path.name not in CHECKPOINT_SKIPPED)
     if not files:
         raise FileNotFoundError(f"{checkpoint} holds no checkpoint files")
@@ -192,8 +195,9 @@ def cells_of(manifest: dict) -> dict[tuple[str, int], CellOutcome]:
 
 def conditions_of(manifest: dict) -> dict[tuple[str, int], dict]:
     """Each cell's ``CONDITIONS`` by ``(task, demo_set)``, keyed by the names ``--allow-difference`` takes: its
-    ``"conditions"`` record, else what the column's settings hold (a cell recorded before its conditions were); a
-    condition neither holds is missing (unknown)."""
+    ``"conditions"`` record, else what the column's settings hold (a cell recorded before its conditions were); no
+    language head where its policy options do not say tasks in words; a condition neither holds is missing
+    (unknown)."""
     settings = manifest["settings"]
     from_settings = {name: settings[key] for key, name in SETTING_CONDITIONS.items() if key in settings}
     if "obs_type" in settings:  # bullet_tabletop's: no MetaWorld setting applies
@@ -204,10 +208,13 @@ def conditions_of(manifest: dict) -> dict[tuple[str, int], dict]:
     for cell in manifest["cells"]:
         record = cell.get("conditions")
         if record is None:
-            conditions[(cell["task"], cell["demo_set"])] = dict(from_settings)
+            known = dict(from_settings)
         else:
-            conditions[(cell["task"], cell["demo_set"])] = {name: record[key] for name, (key, _) in CONDITIONS.items()
-                                                            if key in record}
+            known = {name: record[key] for name, (key, _) in CONDITIONS.items() if key in record}
+        options = known.get("policy_options")
+        if "language_head" not in known and options is not None and LANGUAGE_CONTEXT_ARG not in options:
+            known["language_head"] = None  # recorded before the head was: its options say it read no head
+        conditions[(cell["task"], cell["demo_set"])] = known
     return conditions
 
 
@@ -292,7 +299,7 @@ def check_conditions(manifests: dict[str, dict], allowed: tuple[str, ...] = ()) 
             if condition in allowed:
                 continue
             known = {name: conditions[name][key][condition] for name in names if condition in conditions[name][key]}
-            if condition == "checkpoint":
+            if condition in ("checkpoint", "language_head"):
                 scopes = [{name: value for name, value in known.items() if value is not None}]
             elif condition == "policy_options":
                 scopes = [{name: value for name, value in known.items() if policies[name] == policy}

@@ -41,18 +41,19 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from ..language.task_language import SHIPPED_LANGUAGE_HEAD
 from ..sim.env import SUCCESS_CRITERIA
 from ..sim.hand_demonstrator import DEMONSTRATORS
 from ..sim.recording import record
 from ..sim.task_api import get_task
 from . import metaworld_suite
-from .manifest import CELL_FILE, cell_identity, checkpoint_fingerprint
+from .manifest import CELL_FILE, LANGUAGE_CONTEXT_ARG, cell_identity, checkpoint_fingerprint
 from .success_table import collect_results, format_table, task_group, write_table
 
 ENV_TYPE = "bullet_tabletop"
 POLICIES = ("demo_replay", "instant_policy", "do_nothing")  # bullet_tabletop's
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
-LANGUAGE_CONTEXT_ARG = "--policy.context=language"  # instant_policy reads the env's task in words instead
+LANGUAGE_HEAD_ARG = "--policy.language_head_path"  # the language head it reads them with (default the shipped one)
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
 SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demonstration seed, first episode seed)
 # settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
@@ -349,15 +350,25 @@ def env_arg_values(env_args: tuple[str, ...]) -> dict[str, str]:
 
 def cell_conditions(settings: SuiteSettings, task: str) -> dict:
     """The ``"conditions"`` record of a cell of ``task`` (JSON-ready, ``manifest.CONDITIONS``): the SHA-256 of the
-    checkpoint (``None``: the policy loads none), the policy options, the env arguments but the video size, and the
-    env's own (``SuiteEnv.conditions``)."""
-    checkpoint = None
+    checkpoint (``None``: the policy loads none) and of the language head the policy says tasks with (``None``: it
+    reads demonstrations), the policy options, the env arguments but the video size, and the env's own
+    (``SuiteEnv.conditions``)."""
+    checkpoint = language_head = None
     if settings.policy_path:
-        path = Path(settings.policy_path)
-        checkpoint = checkpoint_fingerprint(path) if path.is_dir() else f"not a local directory: {path}"
-    return {"checkpoint_sha256": checkpoint, "policy_options": list(settings.policy_args),
+        checkpoint = _fingerprint_of(Path(settings.policy_path))
+    if settings.says_tasks_in_words:
+        head_paths = [arg.split("=", 1)[1] for arg in settings.policy_args
+                      if arg.startswith(f"{LANGUAGE_HEAD_ARG}=")]
+        language_head = _fingerprint_of(Path(head_paths[-1]).expanduser() if head_paths else SHIPPED_LANGUAGE_HEAD)
+    return {"checkpoint_sha256": checkpoint, "language_head_sha256": language_head,
+            "policy_options": list(settings.policy_args),
             "env_args": [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)],
             **settings.env.conditions(settings, task, env_arg_values(settings.env_args))}
+
+
+def _fingerprint_of(path: Path) -> str:
+    """``manifest.checkpoint_fingerprint`` of a directory the policy loads, or why there is none."""
+    return checkpoint_fingerprint(path) if path.is_dir() else f"not a local directory: {path}"
 
 
 def write_cell_record(settings: SuiteSettings, task: str, demo_set: int, source: str | None,
@@ -467,7 +478,8 @@ def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> se
             conditions = recorded.pop("conditions", None)
             changed = sorted(key for key in expected.keys() | recorded.keys() if expected.get(key) != recorded.get(key))
             if conditions is not None:
-                changed += sorted(key for key, value in expected_conditions.items() if conditions.get(key) != value)
+                changed += sorted(key for key, value in expected_conditions.items()
+                                  if key in conditions and conditions[key] != value)
             if changed:
                 raise SuiteError(f"--resume: {cell} was evaluated with other settings ({', '.join(changed)}); resume "
                                  f"with the same settings, or give this run another --run-name")

@@ -119,7 +119,8 @@ def test_cells_record_the_conditions_they_ran_under(fake_suite, tmp_path):
         digest.update(name.encode() + b"\0" + (checkpoint / name).read_bytes())
     drawer = get_task("open_drawer")
     assert cells["open_drawer"] == {
-        "checkpoint_sha256": digest.hexdigest(), "policy_options": ["--policy.inference_steps=8"],
+        "checkpoint_sha256": digest.hexdigest(), "language_head_sha256": None,
+        "policy_options": ["--policy.inference_steps=8"],
         "env_args": ["--env.depth_noise_std=0.002"], "success": "held", "hold_steps": drawer.success_hold_steps,
         "episode_length": drawer.max_episode_steps, "render_size": 64, "obs_type": "pointcloud",
         "pointcloud_every": None}
@@ -130,6 +131,39 @@ def test_cells_record_the_conditions_they_ran_under(fake_suite, tmp_path):
     (checkpoint / "model.safetensors").write_bytes(b"other weights")
     with pytest.raises(SuiteError, match="checkpoint_sha256"):
         suite.run_suite(dataclasses.replace(settings, resume=True), TASKS, report=lambda line: None)
+
+
+def test_columns_said_in_words_record_their_language_head(fake_suite, tmp_path, capsys):
+    """A column told ``context=language`` records the SHA-256 of the head it reads (the shipped one by default, or
+    ``--policy.language_head_path``): two such columns with other heads join only with ``--allow-difference
+    language_head``, and ``--resume`` refuses cells said with another head."""
+    checkpoint = str(fake_checkpoint(tmp_path / "ckpt", b"weights"))
+    heads = {name: fake_checkpoint(tmp_path / name, name.encode()) for name in ("head_a", "head_b")}
+    words = ("--policy.context=language",)
+    shipped = SuiteSettings(policy="instant_policy", policy_path=checkpoint, out=tmp_path, episodes=2, demo_sets=1,
+                            policy_args=words, run_name="shipped")
+    cells = two_cells([True, False], [True, True])
+    shipped_runs = fake_suite(shipped, cells)
+    column = column_manifest(shipped_runs)["cells"]
+    assert {cell["conditions"]["language_head_sha256"] for cell in column} == {
+        checkpoint_fingerprint(suite.SHIPPED_LANGUAGE_HEAD)}
+    runs = {}
+    for name, head in heads.items():
+        settings = dataclasses.replace(shipped, run_name=name,
+                                       policy_args=(*words, f"--policy.language_head_path={head}"))
+        runs[name] = fake_suite(settings, cells)
+    assert {cell["conditions"]["language_head_sha256"] for cell in column_manifest(runs["head_a"])["cells"]} == {
+        checkpoint_fingerprint(heads["head_a"])}
+    columns = [f"a={runs['head_a']}", f"b={runs['head_b']}", "--out", str(tmp_path / "table"),
+               "--allow-difference", "policy_options"]
+    assert eval_table(columns) == 2
+    assert "differ in language_head" in capsys.readouterr().err
+    assert eval_table([*columns, "--allow-difference", "language_head"]) == 0
+    (heads["head_a"] / "model.safetensors").write_bytes(b"retrained")
+    with pytest.raises(SuiteError, match="language_head_sha256"):
+        suite.run_suite(dataclasses.replace(shipped, run_name="head_a", resume=True,
+                                            policy_args=(*words, f"--policy.language_head_path={heads['head_a']}")),
+                        TASKS, report=lambda line: None)
 
 
 def test_seeds_are_read_as_lerobot_eval_reports_them(fake_suite, tmp_path):
