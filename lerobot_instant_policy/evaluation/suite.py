@@ -53,7 +53,6 @@ from .success_table import collect_results, format_table, task_group, write_tabl
 ENV_TYPE = "bullet_tabletop"
 POLICIES = ("demo_replay", "instant_policy", "do_nothing")  # bullet_tabletop's
 DEMONSTRATION_POLICIES = ("demo_replay", "instant_policy")  # the policies that read recorded demonstrations
-LANGUAGE_HEAD_ARG = "--policy.language_head_path"  # the language head it reads them with (default the shipped one)
 DEMO_SET_STRIDE = 100  # demonstration set s records from seed demo_seed + 100 s: room for failed scripted seeds
 SEED_SPLITS = {"dev": (0, 1000), "test": (50_000, 60_000)}  # split: (first demonstration seed, first episode seed)
 # settings that decide no cell's result: where and how many (a cell's task and set are its own), and the videos'
@@ -343,9 +342,11 @@ def run_task(settings: SuiteSettings, task: str, demo_set: int = 0, source: str 
     return output_dir
 
 
-def env_arg_values(env_args: tuple[str, ...]) -> dict[str, str]:
-    """``--env.KEY=VALUE`` arguments as ``{KEY: VALUE}`` (the last of a repeated key)."""
-    return dict(arg.removeprefix("--env.").split("=", 1) for arg in env_args if arg.startswith("--env.") and "=" in arg)
+def arg_values(args: tuple[str, ...], prefix: str) -> dict[str, str]:
+    """``--PREFIX.KEY=VALUE`` arguments (``prefix``: ``env`` or ``policy``) as ``{KEY: VALUE}`` (the last of a
+    repeated key)."""
+    start = f"--{prefix}."
+    return dict(arg.removeprefix(start).split("=", 1) for arg in args if arg.startswith(start) and "=" in arg)
 
 
 def cell_conditions(settings: SuiteSettings, task: str) -> dict:
@@ -357,13 +358,12 @@ def cell_conditions(settings: SuiteSettings, task: str) -> dict:
     if settings.policy_path:
         checkpoint = _fingerprint_of(Path(settings.policy_path))
     if settings.says_tasks_in_words:
-        head_paths = [arg.split("=", 1)[1] for arg in settings.policy_args
-                      if arg.startswith(f"{LANGUAGE_HEAD_ARG}=")]
-        language_head = _fingerprint_of(Path(head_paths[-1]).expanduser() if head_paths else SHIPPED_LANGUAGE_HEAD)
+        head_path = arg_values(settings.policy_args, "policy").get("language_head_path")
+        language_head = _fingerprint_of(Path(head_path).expanduser() if head_path else SHIPPED_LANGUAGE_HEAD)
     return {"checkpoint_sha256": checkpoint, "language_head_sha256": language_head,
             "policy_options": list(settings.policy_args),
             "env_args": [arg for arg in settings.env_args if not arg.startswith(VIDEO_ENV_ARGS)],
-            **settings.env.conditions(settings, task, env_arg_values(settings.env_args))}
+            **settings.env.conditions(settings, task, arg_values(settings.env_args, "env"))}
 
 
 def _fingerprint_of(path: Path) -> str:
@@ -478,8 +478,7 @@ def cells_to_keep(settings: SuiteSettings, sources: dict[str, str | None]) -> se
             conditions = recorded.pop("conditions", None)
             changed = sorted(key for key in expected.keys() | recorded.keys() if expected.get(key) != recorded.get(key))
             if conditions is not None:
-                changed += sorted(key for key, value in expected_conditions.items()
-                                  if key in conditions and conditions[key] != value)
+                changed += sorted(key for key, value in expected_conditions.items() if conditions.get(key) != value)
             if changed:
                 raise SuiteError(f"--resume: {cell} was evaluated with other settings ({', '.join(changed)}); resume "
                                  f"with the same settings, or give this run another --run-name")
