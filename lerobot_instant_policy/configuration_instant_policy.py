@@ -27,6 +27,7 @@ from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import DiffuserSchedulerConfig
 
 from .contract import POINTCLOUD_KEY
+from .data.replay_plan import replay_plan_name
 from .geometry.gripper import GRIPPER_KEYPOINTS
 from .language.paraphrases import paraphrase_choice
 from .model.bounds import (
@@ -203,6 +204,8 @@ class InstantPolicyConfig(PreTrainedConfig):
         replay_per_object: plan that replay per object (the grasp follows the grasped object, the release the other
             one) where two objects move independently; in training to refine, the priors too (``None``: the
             preset's, ``True`` for ``refined``, else ``False``).
+        replay_anchored: plan that replay per segment instead, each segment following the object it approaches
+            (:mod:`~.data.replay_segments`); excludes ``replay_per_object`` (default ``False``).
         refine_fraction: the share of training rows whose noised sample starts from the row's replay prior
             (``observation.replay_prior``, :mod:`.pseudo_demos.replay_priors`, which the pseudo-task stream and pool
             supply when this is positive) instead of its clean actions, the target staying the clean actions: the
@@ -273,6 +276,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     replan_on_gripper_change: bool = True
     replay_init_strength: float | None = None
     replay_per_object: bool | None = None
+    replay_anchored: bool = False
     refine_fraction: float | None = None
     refine_max_strength: float = 0.5
     samples_per_prediction: int = 1
@@ -321,6 +325,7 @@ class InstantPolicyConfig(PreTrainedConfig):
             raise ValueError(f"replay_init_strength must lie in (0, 1] or be None, got {self.replay_init_strength}")
         if not 0.0 <= self.refine_fraction <= 1.0:
             raise ValueError(f"refine_fraction must lie in [0, 1], got {self.refine_fraction}")
+        self.replay_plan()
         if not 0.0 < self.refine_max_strength <= 1.0:
             raise ValueError(f"refine_max_strength must lie in (0, 1], got {self.refine_max_strength}")
         if not 1 <= self.n_action_steps <= self.horizon:
@@ -394,6 +399,10 @@ class InstantPolicyConfig(PreTrainedConfig):
             )
         if self.encoder_weights is not None and not self.encoder_weights.endswith(".safetensors"):
             raise ValueError(f"encoder_weights must name a .safetensors file, got {self.encoder_weights!r}")
+
+    def replay_plan(self) -> str:
+        """The replay plan ``replay_per_object`` and ``replay_anchored`` name (:data:`~.data.replay_plan.REPLAY_PLANS`)."""
+        return replay_plan_name(self.replay_per_object, self.replay_anchored)
 
     @property
     def encoder_config(self) -> GeometryEncoderConfig:

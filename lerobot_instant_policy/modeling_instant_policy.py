@@ -415,8 +415,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         if self._replay_plans is None or len(self._replay_plans) != len(tasks):
             clouds = points_world.detach().cpu().numpy()
             self._replay_plans = [
-                plan_replay(task, self._demonstrations.get(task), cloud, REPLAY_REGISTRATION,
-                            self.config.replay_per_object)
+                plan_replay(task, self._demonstrations.get(task), cloud, REPLAY_REGISTRATION, self.config.replay_plan())
                 for task, cloud in zip(tasks, clouds, strict=True)
             ]
         planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])

@@ -125,12 +125,12 @@ def pool_start_task(checkpoint_path: Path | None, batch_size: int, world_size: i
 def stream_config_for(policy_config, stream_config: StreamConfig) -> StreamConfig:
     """``stream_config`` with the N, L, T and P the policy trains on (its ``max_demos``, ``num_waypoints``,
     ``horizon`` and clouds' size), and replay priors planned as its inference plans them when it trains to refine
-    (``refine_fraction`` > 0, ``replay_per_object``)."""
+    (``refine_fraction`` > 0, ``replay_per_object`` / ``replay_anchored``)."""
     return dataclasses.replace(stream_config, num_demos=policy_config.max_demos,
                                num_waypoints=policy_config.num_waypoints, horizon=policy_config.horizon,
                                num_points=policy_config.num_points,
                                replay_priors=policy_config.refine_fraction > 0,
-                               replay_per_object=policy_config.replay_per_object)
+                               replay_plan=policy_config.replay_plan())
 
 
 def make_stream_datasets(cfg, stream_config: StreamConfig, rank: int, world_size: int,

@@ -19,6 +19,7 @@ from lerobot_instant_policy.geometry.se3 import look_rotation, make_pose, pose_t
 from lerobot_instant_policy.objects.library import load_object
 
 OBJECT_ID = "pb/mug"
+MUG, DUCK = "pb/mug", "pb/duck"  # the two objects of the carry scenes (scene_cloud, carry_demo)
 NUM_FRAMES = 12
 
 
@@ -85,3 +86,31 @@ def random_poses(count: int, seed: int = 0, extent_m: float = 2.0) -> np.ndarray
     rng = np.random.default_rng(seed)
     rotations = Rotation.random(count, random_state=seed).as_matrix()
     return np.stack([make_pose(rng.uniform(-extent_m, extent_m, 3), rotation) for rotation in rotations])
+
+
+def scene_cloud(T_world_mug: np.ndarray, T_world_duck: np.ndarray, seed: int) -> np.ndarray:
+    """``(NUM_POINTS, 3)``: half the points on the mug, half on the duck."""
+    half = NUM_POINTS // 2
+    return np.concatenate([object_cloud(T_world_mug, seed, object_id=MUG)[:half],
+                           object_cloud(T_world_duck, seed + 1, object_id=DUCK)[:half]])
+
+
+def carry_actions(T_world_mug: np.ndarray, T_world_duck: np.ndarray, grasp_open: bool = False) -> np.ndarray:
+    """``(9, 8)``: down onto the mug, close (frame 2), lift, carry over the duck, lower, open (frame 7), up.
+    ``grasp_open``: the gripper never closes (no grasp and release)."""
+    mug, duck = T_world_mug[:3, 3], T_world_duck[:3, 3]
+    waypoints = [(mug, 0.20, 1), (mug, 0.06, 1), (mug, 0.06, 0), (mug, 0.20, 0), ((mug + duck) / 2, 0.20, 0),
+                 (duck, 0.20, 0), (duck, 0.12, 0), (duck, 0.12, 1), (duck, 0.25, 1)]
+    down = look_rotation(np.array([0.0, 0.0, -1.0]), yaw=0.0)
+    rows = []
+    for xy, height, gripper in waypoints:
+        position, quat = pose_to_pos_quat(make_pose(np.array([xy[0], xy[1], height]), down))
+        rows.append(np.concatenate([position, quat, [1.0 if grasp_open else gripper]]))
+    return np.asarray(rows, dtype=np.float32)
+
+
+def carry_demo(T_world_mug: np.ndarray, T_world_duck: np.ndarray, seed: int, grasp_open: bool = False) -> Demonstration:
+    action = carry_actions(T_world_mug, T_world_duck, grasp_open)
+    state = np.concatenate([action[:1], action[:-1]])
+    points = np.repeat(scene_cloud(T_world_mug, T_world_duck, seed)[None], len(action), axis=0)
+    return Demonstration(points_world=points, state=state, action=action, task="put_on_duck")

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 
+from ..data.replay_plan import replay_plan_name
 from ..geometry.registration import RegistrationConfig
 from ..policy.features import (
     check_policy_features,
@@ -34,7 +35,9 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     translation (tabletop objects); ``registration_overlap`` is the fraction of correspondences ICP keeps;
     ``registration_points`` caps the points used in the final ICP. ``registration_per_object``: split the clouds
     into objects and let the grasp follow the grasped object and the release the other one, for tasks whose two
-    objects move independently (:func:`~..data.replay_plan.plan_replay`); ``False``: one motion for the whole cloud.
+    objects move independently (:func:`~..data.replay_plan.plan_replay`); ``registration_anchored``: cut every
+    demonstration into segments at gripper changes, stops and turns and let each segment follow the object it
+    approaches (:mod:`~..data.replay_segments`); both ``False``: one motion for the whole cloud.
     """
 
     demo_repo_id: str | None = None
@@ -45,6 +48,7 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     registration_overlap: float = 0.8
     registration_points: int = 1024
     registration_per_object: bool = False
+    registration_anchored: bool = False
 
     push_to_hub: bool = False
 
@@ -59,6 +63,7 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
         if self.n_obs_steps != 1:
             raise ValueError(f"demo_replay reads the current observation only: n_obs_steps must be 1, got {self.n_obs_steps}")
         self.registration_config()
+        replay_plan_name(self.registration_per_object, self.registration_anchored)
 
     def registration_config(self) -> RegistrationConfig:
         """The ``RegistrationConfig`` these fields describe (validated)."""

@@ -114,7 +114,7 @@ def replay_prior_benchmark(stream_config: StreamConfig, tasks: int = 24, preset:
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     policy_config = InstantPolicyConfig(preset=preset, device=str(device))
     base = dataclasses.replace(stream_config_for(policy_config, stream_config), replay_priors=False)
-    variants = {"without": base, "with": dataclasses.replace(base, replay_priors=True, replay_per_object=True)}
+    variants = {"without": base, "with": dataclasses.replace(base, replay_priors=True, replay_plan="per_object")}
     streams = {name: PseudoTaskStream(config, device=device) for name, config in variants.items()}
     encoder = policy_encoder_source(policy_config).build().to(device)
     per_task: dict[str, list[float]] = {name: [] for name in variants}

@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "the replay's own errors beside the policy's")
     parser.add_argument("--replay-per-object", choices=["true", "false"],
                         help="plan that replay per object (the policy's replay_per_object; default: the checkpoint's)")
+    parser.add_argument("--replay-anchored", choices=["true", "false"],
+                        help="plan that replay per segment, each following the object it approaches (the policy's "
+                             "replay_anchored; default: the checkpoint's)")
     add_prediction_and_output(parser)
     return parser
 
@@ -117,8 +120,13 @@ def main(argv: list[str] | None = None) -> int:
     return report(PROG, lambda: action_error(args.policy_path, args.root, args.tasks, args.frames_per_task, args.seed,
                                              args.K, args.N, args.L, not args.no_untrained, args.repo_id, args.device,
                                              args.samples_per_prediction, args.replay_init_strength,
-                                             None if args.replay_per_object is None
-                                             else args.replay_per_object == "true"), args.json)
+                                             _switch(args.replay_per_object), _switch(args.replay_anchored)),
+                  args.json)
+
+
+def _switch(value: str | None) -> bool | None:
+    """A ``true``/``false`` option's value, None where it was not given."""
+    return None if value is None else value == "true"
 
 
 if __name__ == "__main__":

@@ -14,6 +14,16 @@ when it first closes (action ``c``), the reference ``B`` the other object neares
 between them each pose moved with ``A`` is blended into the same pose moved with ``B`` (position linearly, rotation by
 slerp) by the fraction of the carry's path the demonstrated gripper has travelled. A demonstration without that
 structure (one object, no grasp and release) is planned whole.
+
+Anchored (``plan="anchored"``), for every demonstration: its actions are cut into segments at gripper changes, stops
+and turns, each anchored to the demonstrated object its end pose approaches (:mod:`.replay_segments`); each anchor is
+registered onto the live object it fits best (one-to-one), and an anchored segment's end moves with its anchor.
+Between two anchored ends the poses are blended from the first anchor's motion into the second's by the fraction of
+the path between them travelled, as in the per-object carry, so the joins are smooth and a segment in transit (a
+lift, a carry) drifts from what it left to what it approaches; before the first anchored end the poses move with
+the first anchor, after the last with the last. A grasp and
+place is anchored as the per-object plan plans it; a push, a reach to a marker, a handle and one object take the
+same path. A demonstration whose segments approach no object is planned whole.
 """
 
 from __future__ import annotations
@@ -31,10 +41,20 @@ from scipy.spatial.transform import Rotation
 from ..contract import poses_from_vectors, vectors_from_poses
 from ..geometry.registration import RegistrationConfig, RegistrationResult, register_rigid
 from .demonstrations import Demonstration
+from .replay_segments import SegmentConfig, anchor_segments
 
 # The registration of the replay an instant_policy denoises from (``replay_init_strength``) and trains to refine:
 # yaw-only, tabletop objects standing upright (the demo_replay baseline's default too).
 REPLAY_REGISTRATION = RegistrationConfig(yaw_only=True)
+# The plans plan_replay makes: one motion for the whole cloud, per object for a grasp and release, or per segment.
+REPLAY_PLANS = ("whole", "per_object", "anchored")
+
+
+def replay_plan_name(per_object: bool, anchored: bool) -> str:
+    """The plan a config's two switches name (``anchored`` and ``per_object`` exclude each other)."""
+    if per_object and anchored:
+        raise ValueError("a replay is planned per object or anchored per segment, not both")
+    return "anchored" if anchored else "per_object" if per_object else "whole"
 
 
 @dataclass(frozen=True)
@@ -77,18 +97,21 @@ def plan_replay(
     demonstrations: Sequence[Demonstration | ReplaySource],
     cloud_now: np.ndarray,
     config: RegistrationConfig,
-    per_object: bool = False,
+    plan: str = "whole",
 ) -> ReplayPlan:
     """Register every demonstration of ``task`` onto ``cloud_now (P, 3)`` (world frame) and plan the best one's
-    actions in the live scene: whole, or with ``per_object`` per object where the demonstration allows it. A
-    demonstration is read through its :class:`ReplaySource` (its first cloud and its actions)."""
+    actions in the live scene: ``plan`` one of :data:`REPLAY_PLANS` (module docstring); a demonstration that the
+    per-object or anchored plan cannot structure is planned whole. A demonstration is read through its
+    :class:`ReplaySource` (its first cloud and its actions)."""
+    if plan not in REPLAY_PLANS:
+        raise ValueError(f"unknown replay plan {plan!r}: expected one of {REPLAY_PLANS}")
     if not demonstrations:
         raise ValueError(f"no demonstrations of task {task!r} to replay")
     demonstrations = [demo if isinstance(demo, ReplaySource) else ReplaySource.of(demo) for demo in demonstrations]
-    if per_object:
+    if plan != "whole":
         live_objects = split_objects(cloud_now)
-        plans = [_plan_per_object(task, index, demo, live_objects, config)
-                 for index, demo in enumerate(demonstrations)]
+        planner = _plan_per_object if plan == "per_object" else _plan_anchored
+        plans = [planner(task, index, demo, live_objects, config) for index, demo in enumerate(demonstrations)]
         plans = [plan for plan in plans if plan is not None]
         if plans:
             return min(plans, key=lambda plan: np.mean([fit.fit_error for fit in plan.object_fits]))
@@ -142,6 +165,38 @@ def _plan_per_object(
                       T_now_demo_per_action=T_per_action, object_fits=tuple(fits))
 
 
+def _plan_anchored(
+    task: str,
+    demo_index: int,
+    demo: ReplaySource,
+    live_objects: list[np.ndarray],
+    config: RegistrationConfig,
+) -> ReplayPlan | None:
+    """The anchored plan of one demonstration (module docstring), or None where its segments approach no object or
+    the live cloud shows none."""
+    demo_objects = split_objects(demo.first_cloud)
+    segments = anchor_segments(demo.action, demo_objects, SegmentConfig()) if live_objects else None
+    if segments is None:
+        return None
+    ends, anchors = segments.anchored()
+    used = sorted(set(anchors.tolist()))
+    fits = dict(zip(used, _match_objects([demo_objects[index] for index in used], live_objects, config), strict=True))
+    T_anchor = np.stack([fits[anchor].T_target_source for anchor in anchors])  # (A, 4, 4)
+    T_world_ee, gripper_open = poses_from_vectors(demo.action)
+    T_world_planned = T_anchor[np.minimum(np.searchsorted(ends, np.arange(len(T_world_ee))), len(ends) - 1)] @ T_world_ee
+    for index in np.flatnonzero(anchors[1:] != anchors[:-1]):
+        start, end = int(ends[index]), int(ends[index + 1])
+        weights = _carry_fraction(demo.action[:, :3], start, end)[start + 1:end + 1]
+        T_world_planned[start + 1:end + 1] = _blend(T_anchor[index] @ T_world_ee[start + 1:end + 1],
+                                                    T_anchor[index + 1] @ T_world_ee[start + 1:end + 1], weights)
+    actions = vectors_from_poses(T_world_planned, gripper_open).astype(np.float32)
+    T_per_action = T_world_planned @ np.linalg.inv(T_world_ee)
+    first = fits[int(anchors[0])]
+    return ReplayPlan(task=task, demo_index=demo_index, T_now_demo=first.T_target_source, actions=actions,
+                      registration=first, T_now_demo_per_action=T_per_action,
+                      object_fits=tuple(fits[index] for index in used))
+
+
 def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None) -> int:
     """Index of the object (``(P_i, 3)`` clouds) with the point nearest to ``position (3,)``, other than ``exclude``."""
     distances = [np.inf if index == exclude else float(np.min(np.linalg.norm(points - position, axis=1)))
@@ -153,10 +208,14 @@ def _match_objects(
     demo_objects: list[np.ndarray], live_objects: list[np.ndarray], config: RegistrationConfig
 ) -> list[RegistrationResult]:
     """Register each demonstrated object onto every live object and keep the one-to-one assignment with the least
-    summed fit error (Hungarian); the fits of ``demo_objects`` in their order."""
+    summed fit error (Hungarian); the fits of ``demo_objects`` in their order. Where there are more demonstrated
+    objects than live ones, those left unassigned take the live object they fit best."""
     fits = [[register_rigid(source, target, config) for target in live_objects] for source in demo_objects]
-    rows, columns = linear_sum_assignment([[fit.fit_error for fit in row] for row in fits])
-    return [fits[row][column] for row, column in zip(rows, columns, strict=True)]
+    errors = np.array([[fit.fit_error for fit in row] for row in fits])
+    chosen = np.argmin(errors, axis=1)
+    rows, columns = linear_sum_assignment(errors)
+    chosen[rows] = columns
+    return [fits[row][column] for row, column in enumerate(chosen)]
 
 
 def _carry_fraction(positions: np.ndarray, close: int, release: int) -> np.ndarray:

@@ -102,13 +102,13 @@ class HeldOutTask:
     live_state: np.ndarray
     _priors: dict = dataclasses.field(default_factory=dict, repr=False)
 
-    def replay_priors(self, num_demos: int, horizon: int, per_object: bool) -> np.ndarray:
+    def replay_priors(self, num_demos: int, horizon: int, plan: str) -> np.ndarray:
         """``(frames, T, 8)``: the replay prior of every frame from the first ``num_demos`` demonstrations
         (:func:`.replay_priors.replay_priors`), planned once per setting."""
-        key = (num_demos, horizon, per_object)
+        key = (num_demos, horizon, plan)
         if key not in self._priors:
             self._priors[key] = replay_priors(self.demos[:num_demos], self.live_first_points, self.live_state,
-                                              [frame.t for frame in self.frames], horizon, per_object)
+                                              [frame.t for frame in self.frames], horizon, plan)
         return self._priors[key]
 
 
@@ -217,7 +217,7 @@ def predict_task(policy: InstantPolicyPolicy, held_out: HeldOutTask, k: int, n: 
     replay (``replay_init_strength``) from the frame's replay prior (:meth:`HeldOutTask.replay_priors`)."""
     device = next(policy.parameters()).device
     config = policy.config
-    priors = held_out.replay_priors(n, config.horizon, config.replay_per_object) if config.replay_init_strength \
+    priors = held_out.replay_priors(n, config.horizon, config.replay_plan()) if config.replay_init_strength \
         else [None] * len(held_out.frames)
     predictions = []
     for frame, prior in zip(held_out.frames, priors, strict=True):
@@ -260,11 +260,11 @@ def hold_reference(tasks: list[HeldOutTask]) -> dict:
     return summarise(errors, [f.phase for f in frames], task_of_frames(tasks))
 
 
-def replay_reference(tasks: list[HeldOutTask], num_demos: int, horizon: int, per_object: bool) -> dict:
+def replay_reference(tasks: list[HeldOutTask], num_demos: int, horizon: int, plan: str) -> dict:
     """Errors of the replay priors themselves (:meth:`HeldOutTask.replay_priors` from ``num_demos``
     demonstrations), what a policy that starts from them is compared with."""
     frames = [f for held in tasks for f in held.frames]
-    priors = [prior for held in tasks for prior in held.replay_priors(num_demos, horizon, per_object)]
+    priors = [prior for held in tasks for prior in held.replay_priors(num_demos, horizon, plan)]
     errors = [chunk_errors(prior.astype(np.float64), f.target.astype(np.float64)) for prior, f in zip(priors, frames)]
     return summarise(errors, [f.phase for f in frames], task_of_frames(tasks))
 
@@ -437,18 +437,19 @@ class Probe:
 def open_probe(policy_path: str | Path, root: str | Path, settings: list[tuple[int, int, int]], tasks: int = 12,
                frames_per_task: int = 4, seed: int = 0, repo_id: str | None = None, device: str = "cpu",
                samples_per_prediction: int | None = None, replay_init_strength: float | None = None,
-               replay_per_object: bool | None = None) -> Probe:
+               replay_per_object: bool | None = None, replay_anchored: bool | None = None) -> Probe:
     """The checkpoint at ``policy_path`` and the first ``tasks`` held-out pseudo-tasks at ``root``, once every
     ``(K, N, L)`` of ``settings`` is known to be evaluable: in the config's ranges (:func:`check_setting`, before the
     weights load), N below each task's episodes, the dataset's clouds the checkpoint's size. ``samples_per_prediction``,
-    ``replay_init_strength`` and ``replay_per_object`` replace the checkpoint's (None: kept). ``ActionErrorError`` /
+    ``replay_init_strength``, ``replay_per_object`` and ``replay_anchored`` replace the checkpoint's (None: kept). ``ActionErrorError`` /
     ``EvaluationError`` / ``DemonstrationError`` naming the problem."""
     config = checkpoint_config(Checkpoint(step=0, path=Path(policy_path)))
     for setting in settings:
         check_setting(config, setting, samples_per_prediction)
     overrides = {name: value for name, value in (("samples_per_prediction", samples_per_prediction),
                                                  ("replay_init_strength", replay_init_strength),
-                                                 ("replay_per_object", replay_per_object)) if value is not None}
+                                                 ("replay_per_object", replay_per_object),
+                                                 ("replay_anchored", replay_anchored)) if value is not None}
     try:
         dataclasses.replace(config, **overrides)
     except ValueError as error:
@@ -473,6 +474,7 @@ def open_probe(policy_path: str | Path, root: str | Path, settings: list[tuple[i
         "checkpoint_defaults": {"K": config.inference_steps, "N": config.num_demos, "L": config.num_waypoints},
         "samples_per_prediction": config.samples_per_prediction,
         "replay_init_strength": config.replay_init_strength, "replay_per_object": config.replay_per_object,
+        "replay_plan": config.replay_plan(),
     }
     return Probe(policy, held_out, description)
 
@@ -499,7 +501,7 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
     result["intervals"] = task_intervals(result["per_task"])
     config = probe.policy.config
     if config.replay_init_strength:
-        result["replay"] = replay_reference(probe.tasks, own["N"], config.horizon, config.replay_per_object)
+        result["replay"] = replay_reference(probe.tasks, own["N"], config.horizon, config.replay_plan())
         for row, replay_mm in zip(result["per_task"], result["replay"]["translation_mm_by_task"], strict=True):
             row["replay_mm"] = replay_mm
         result["intervals"].update(replay_intervals(result["per_task"]))
@@ -526,7 +528,8 @@ def replay_intervals(per_task: list[dict], resamples: int = BOOTSTRAP_RESAMPLES,
 def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, frames_per_task: int = 4, seed: int = 0,
                  k: int = DEFAULT_K, n: int = DEFAULT_N, l: int = DEFAULT_L, untrained: bool = True,
                  repo_id: str | None = None, device: str = "cpu", samples_per_prediction: int | None = None,
-                 replay_init_strength: float | None = None, replay_per_object: bool | None = None) -> dict:
+                 replay_init_strength: float | None = None, replay_per_object: bool | None = None,
+                 replay_anchored: bool | None = None) -> dict:
     """Action errors of the checkpoint at ``policy_path`` on held-out pseudo-tasks at ``root`` at K = ``k``, N = ``n``,
     L = ``l`` (module docstring).
 
@@ -538,7 +541,7 @@ def action_error(policy_path: str | Path, root: str | Path, tasks: int = 12, fra
     """
     start = time.perf_counter()
     probe = open_probe(policy_path, root, [(k, n, l)], tasks, frames_per_task, seed, repo_id, device,
-                       samples_per_prediction, replay_init_strength, replay_per_object)
+                       samples_per_prediction, replay_init_strength, replay_per_object, replay_anchored)
     own = evaluate_setting(probe.policy, probe.tasks, (k, n, l))
     result = {**probe.description, "settings": [own], **references(probe, own, untrained)}
     result["wall_s"] = round(time.perf_counter() - start, 1)

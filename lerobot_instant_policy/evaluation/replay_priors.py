@@ -49,14 +49,15 @@ def plan_steps(live_state: np.ndarray, planned: np.ndarray) -> np.ndarray:
 
 
 def replay_priors(demonstrations: list[Demonstration], live_first_points: np.ndarray, live_state: np.ndarray,
-                  frames: list[int], horizon: int, per_object: bool) -> np.ndarray:
+                  frames: list[int], horizon: int, plan: str) -> np.ndarray:
     """The replay prior of live frames ``frames``, ``(len(frames), T, 8)`` world frame: the plan of
     ``demonstrations`` onto the live episode's first cloud ``live_first_points (P, 3)``, from the plan step of each
-    frame (:func:`plan_steps` on ``live_state (F, 8)``), planned per object with ``per_object``."""
+    frame (:func:`plan_steps` on ``live_state (F, 8)``), planned as ``plan`` names (:data:`~..data.replay_plan.
+    REPLAY_PLANS`)."""
     task = demonstrations[0].task if demonstrations else ""
-    plan = plan_replay(task, demonstrations, live_first_points, REPLAY_REGISTRATION, per_object)
-    matched = plan_steps(live_state, plan.actions)
-    return np.stack([plan.actions_from(int(matched[t]), horizon) for t in frames]).astype(np.float32)
+    planned = plan_replay(task, demonstrations, live_first_points, REPLAY_REGISTRATION, plan)
+    matched = plan_steps(live_state, planned.actions)
+    return np.stack([planned.actions_from(int(matched[t]), horizon) for t in frames]).astype(np.float32)
 
 
 __all__ = ["GRIPPER_MISMATCH_M", "plan_steps", "replay_priors"]

@@ -49,20 +49,20 @@ def replay_prior_actions(
     live_first_cloud: np.ndarray,
     live_frames: np.ndarray,
     horizon: int,
-    per_object: bool,
+    plan: str,
 ) -> np.ndarray:
     """The replay prior of live frames ``live_frames (S,)``: ``(S, T, 8)`` absolute world-frame EE targets and gripper
     commands (the contract's layout), ``T = horizon``.
 
     ``planned.demos`` holds the context demonstrations then the live one; ``context_first_cloud (P, 3)`` is the first
     context demonstration's first cloud and ``live_first_cloud (P, 3)`` the live one's, world frame, as rendered for
-    training. ``per_object``: plan per object where the demonstration allows it (module docstring).
+    training. ``plan``: one of :data:`~..data.replay_plan.REPLAY_PLANS` (module docstring).
     """
     first, live = planned.demos[0], planned.demos[-1]
     source = ReplaySource(np.asarray(context_first_cloud), first.action)
-    plan = plan_replay(f"pseudo-task {planned.task_index}", [source], live_first_cloud, REPLAY_REGISTRATION, per_object)
+    replay = plan_replay(f"pseudo-task {planned.task_index}", [source], live_first_cloud, REPLAY_REGISTRATION, plan)
     steps = np.asarray(live_frames)[:, None] + np.arange(horizon)
-    return plan.actions[aligned_frames(live, first, steps)].astype(np.float32)
+    return replay.actions[aligned_frames(live, first, steps)].astype(np.float32)
 
 
 __all__ = ["aligned_frames", "replay_prior_actions"]

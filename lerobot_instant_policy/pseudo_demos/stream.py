@@ -60,6 +60,7 @@ from ..contract import (
 )
 from ..data.context_bank import waypoint_frames
 from ..data.demonstrations import DemonstrationError
+from ..data.replay_plan import REPLAY_PLANS
 from ..objects.splatting import DEFAULT_SURFACE_SAMPLES, SplatConfig, SplatRenderer, resample_visible
 from .generation import GenerationConfig, PlannedTask, plan_task
 from .replay import GenerationError, splat_inputs
@@ -85,7 +86,7 @@ class StreamConfig:
     and ``depth_tolerance`` (m), as :class:`~..objects.splatting.SplatConfig`; ``resampling`` one of
     ``RESAMPLINGS`` (see the module docstring). ``replay_priors``: each sample also carries the live frame's replay
     prior (:mod:`.replay_priors`, the live demonstration's first cloud rendered for it, one cloud more per task),
-    planned per object with ``replay_per_object``.
+    planned as ``replay_plan`` names (one of :data:`~..data.replay_plan.REPLAY_PLANS`).
     """
 
     generation: GenerationConfig = field(default_factory=GenerationConfig)
@@ -101,7 +102,7 @@ class StreamConfig:
     depth_tolerance: float = 0.006
     resampling: str = "auto"
     replay_priors: bool = False
-    replay_per_object: bool = True
+    replay_plan: str = "per_object"
 
     def __post_init__(self) -> None:
         self.validate()
@@ -120,6 +121,8 @@ class StreamConfig:
                 raise ValueError(f"StreamConfig.{name} must be a positive integer, got {value!r}")
         if not isinstance(self.num_waypoints, int) or isinstance(self.num_waypoints, bool) or self.num_waypoints < 2:
             raise ValueError(f"StreamConfig.num_waypoints must be an integer ≥ 2, got {self.num_waypoints!r}")
+        if self.replay_plan not in REPLAY_PLANS:
+            raise ValueError(f"StreamConfig.replay_plan must be one of {list(REPLAY_PLANS)}, got {self.replay_plan!r}")
         if self.resampling not in RESAMPLINGS:
             raise ValueError(f"StreamConfig.resampling must be one of {list(RESAMPLINGS)}, got {self.resampling!r}")
         if not isinstance(self.generation, GenerationConfig):
@@ -297,7 +300,7 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
         task = RenderedTask(frames, clouds[:-1])
         context_first = task.context_clouds[0, 0].cpu().numpy()
         task.replay_prior = replay_prior_actions(frames.planned, context_first, clouds[-1].cpu().numpy(), frames.live,
-                                                 self.config.horizon, self.config.replay_per_object)
+                                                 self.config.horizon, self.config.replay_plan)
         return task
 
     def _plan(self, task_index: int) -> _TaskFrames | None:

@@ -1,50 +1,27 @@
 """Replay plans (``data/replay_plan.py``): where two objects move independently between the demonstration and the
-live scene, the per-object plan grasps where the grasped object is now and releases where the other one is now; one
-motion for the whole cloud cannot do both."""
+live scene, the per-object and the anchored plans grasp where the grasped object is now and release where the other
+one is now; one motion for the whole cloud cannot do both. The anchored plan does the same for a demonstration that
+never grasps (a push, a reach), where the per-object plan falls back to the whole cloud."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_demos import object_cloud, object_pose
+from synthetic_demos import MUG, carry_actions, carry_demo, object_cloud, object_pose, scene_cloud
 
 from lerobot_instant_policy.contract import NUM_POINTS
 from lerobot_instant_policy.data.demonstrations import Demonstration
-from lerobot_instant_policy.data.replay_plan import plan_replay, split_objects
+from lerobot_instant_policy.data.replay_plan import (
+    REPLAY_PLANS,
+    plan_replay,
+    replay_plan_name,
+    split_objects,
+    transform_pose_actions,
+)
 from lerobot_instant_policy.geometry.registration import RegistrationConfig
-from lerobot_instant_policy.geometry.se3 import look_rotation, make_pose, pose_to_pos_quat
 
-MUG, DUCK = "pb/mug", "pb/duck"
 CLOSE, RELEASE = 2, 7  # the frames where the demonstration's gripper closes on the mug and opens above the duck
 REGISTRATION = RegistrationConfig(yaw_only=True)
-
-
-def scene_cloud(T_world_mug: np.ndarray, T_world_duck: np.ndarray, seed: int) -> np.ndarray:
-    """``(NUM_POINTS, 3)``: half the points on the mug, half on the duck."""
-    half = NUM_POINTS // 2
-    return np.concatenate([object_cloud(T_world_mug, seed, object_id=MUG)[:half],
-                           object_cloud(T_world_duck, seed + 1, object_id=DUCK)[:half]])
-
-
-def carry_actions(T_world_mug: np.ndarray, T_world_duck: np.ndarray, grasp_open: bool = False) -> np.ndarray:
-    """``(9, 8)``: down onto the mug, close (frame 2), lift, carry over the duck, lower, open (frame 7), up.
-    ``grasp_open``: the gripper never closes (no grasp and release)."""
-    mug, duck = T_world_mug[:3, 3], T_world_duck[:3, 3]
-    waypoints = [(mug, 0.20, 1), (mug, 0.06, 1), (mug, 0.06, 0), (mug, 0.20, 0), ((mug + duck) / 2, 0.20, 0),
-                 (duck, 0.20, 0), (duck, 0.12, 0), (duck, 0.12, 1), (duck, 0.25, 1)]
-    down = look_rotation(np.array([0.0, 0.0, -1.0]), yaw=0.0)
-    rows = []
-    for xy, height, gripper in waypoints:
-        position, quat = pose_to_pos_quat(make_pose(np.array([xy[0], xy[1], height]), down))
-        rows.append(np.concatenate([position, quat, [1.0 if grasp_open else gripper]]))
-    return np.asarray(rows, dtype=np.float32)
-
-
-def carry_demo(T_world_mug: np.ndarray, T_world_duck: np.ndarray, seed: int, grasp_open: bool = False) -> Demonstration:
-    action = carry_actions(T_world_mug, T_world_duck, grasp_open)
-    state = np.concatenate([action[:1], action[:-1]])
-    points = np.repeat(scene_cloud(T_world_mug, T_world_duck, seed)[None], len(action), axis=0)
-    return Demonstration(points_world=points, state=state, action=action, task="put_on_duck")
 
 
 def test_split_objects_finds_each_object_and_drops_stray_points():
@@ -55,13 +32,14 @@ def test_split_objects_finds_each_object_and_drops_stray_points():
     assert {float(points[:, 1].mean() > 0) for points in objects} == {0.0, 1.0}  # one on each side
 
 
-def test_per_object_plan_grasps_at_the_grasped_object_and_releases_at_the_other():
+@pytest.mark.parametrize("plan_name", ["per_object", "anchored"])
+def test_per_object_plan_grasps_at_the_grasped_object_and_releases_at_the_other(plan_name):
     demo = carry_demo(object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0), seed=0)
     T_world_mug_now, T_world_duck_now = object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0)
     cloud_now = scene_cloud(T_world_mug_now, T_world_duck_now, seed=5)
     expected = carry_actions(T_world_mug_now, T_world_duck_now)
 
-    plan = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, per_object=True)
+    plan = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, plan_name)
     assert plan.T_now_demo_per_action is not None and len(plan.object_fits) == 2
     for frame in (0, 1, CLOSE, RELEASE, 8):  # on the mug up to the grasp, on the duck from the release
         np.testing.assert_allclose(plan.actions[frame, :3], expected[frame, :3], atol=0.005)
@@ -81,10 +59,64 @@ def test_per_object_plan_grasps_at_the_grasped_object_and_releases_at_the_other(
 ])
 def test_per_object_falls_back_to_the_whole_cloud_without_a_grasp_or_a_second_object(grasp_open, cloud_now):
     demo = carry_demo(object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0), seed=0, grasp_open=grasp_open)
-    per_object = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, per_object=True)
+    per_object = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, "per_object")
     whole = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION)
     assert per_object.T_now_demo_per_action is None and per_object.object_fits == ()
     np.testing.assert_array_equal(per_object.actions, whole.actions)
+
+
+def test_anchored_plan_approaches_each_object_where_it_is_now_without_a_grasp():
+    """A demonstration that touches the mug, then the duck, gripper open throughout (a push, a reach): each touch
+    follows its own object, while the per-object plan has no grasp to structure and replays it whole."""
+    demo = carry_demo(object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0), seed=0, grasp_open=True)
+    T_world_mug_now, T_world_duck_now = object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0)
+    cloud_now = scene_cloud(T_world_mug_now, T_world_duck_now, seed=5)
+    expected = carry_actions(T_world_mug_now, T_world_duck_now, grasp_open=True)
+
+    anchored = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, "anchored")
+    for frame in (1, 2, 6, 7, 8):  # at the mug, then at the duck
+        np.testing.assert_allclose(anchored.actions[frame, :3], expected[frame, :3], atol=0.005)
+    per_object = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, "per_object")
+    assert per_object.T_now_demo_per_action is None
+    errors = [np.linalg.norm(per_object.actions[frame, :3] - expected[frame, :3]) for frame in (1, 7)]
+    assert max(errors) > 0.03  # one motion cannot touch both where they are now
+
+
+def test_anchored_plan_of_a_scene_moved_whole_is_the_demonstration_moved_whole():
+    """Both objects moved by one yaw and shift: every segment's anchor moves by it, so the plan is the demonstration's
+    actions moved by that one motion (the whole-cloud plan's answer), orientation included."""
+    T_world_mug, T_world_duck = object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0)
+    demo = carry_demo(T_world_mug, T_world_duck, seed=0)
+    T_moved = object_pose(0.04, -0.03, 25.0)
+    cloud_now = scene_cloud(T_moved @ T_world_mug, T_moved @ T_world_duck, seed=5)
+    anchored = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, "anchored")
+    expected = transform_pose_actions(T_moved, demo.action)
+    np.testing.assert_allclose(anchored.actions[:, :3], expected[:, :3], atol=0.005)
+    alignment = np.abs(np.sum(anchored.actions[:, 3:7] * expected[:, 3:7], axis=1))
+    assert alignment.min() > np.cos(np.deg2rad(4.0) / 2)  # within 4 degrees (the mug's yaw fits to about 3)
+    np.testing.assert_array_equal(anchored.actions[:, 7], demo.action[:, 7])
+
+
+def test_anchored_plan_falls_back_to_the_whole_cloud_where_nothing_is_approached():
+    """A demonstration that stays 40 cm above the table and never acts: no segment approaches an object."""
+    demo = carry_demo(object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0), seed=0, grasp_open=True)
+    high = demo.action.copy()
+    high[:, 2] = 0.4 + 0.01 * np.arange(len(high))
+    demo = Demonstration(points_world=demo.points_world, state=high, action=high, task="put_on_duck")
+    cloud_now = scene_cloud(object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0), seed=5)
+    anchored = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION, "anchored")
+    whole = plan_replay("put_on_duck", [demo], cloud_now, REGISTRATION)
+    assert anchored.T_now_demo_per_action is None
+    np.testing.assert_array_equal(anchored.actions, whole.actions)
+
+
+def test_an_unknown_plan_and_both_switches_are_clear_errors():
+    with pytest.raises(ValueError, match="unknown replay plan 'segments'"):
+        plan_replay("put_on_duck", [], np.zeros((10, 3)), REGISTRATION, "segments")
+    with pytest.raises(ValueError, match="not both"):
+        replay_plan_name(per_object=True, anchored=True)
+    assert [replay_plan_name(False, False), replay_plan_name(True, False), replay_plan_name(False, True)] == \
+        list(REPLAY_PLANS)
 
 
 def test_no_demonstrations_is_a_clear_error():

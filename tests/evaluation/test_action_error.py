@@ -312,7 +312,7 @@ def test_a_policy_that_starts_from_the_replay_is_judged_beside_the_replay(held_o
     result = _run(held_out_root, replay_init_strength=0.25, replay_per_object=True)
     assert result["replay_init_strength"] == 0.25 and result["replay_per_object"] is True
     tasks = ae.load_held_out_tasks(held_out_root, 2, 1, 8, seed=0)
-    expected = [task.replay_priors(2, 8, True)[0] for task in tasks]
+    expected = [task.replay_priors(2, 8, "per_object")[0] for task in tasks]
     assert len(handed) == 4 and all(np.allclose(handed[i][0].numpy(), expected[i]) for i in range(2))
     assert not np.allclose(handed[2][0].numpy(), expected[0])  # the swap plans from the other task's demonstrations
     replay_mm = [row["replay_mm"] for row in result["per_task"]]

@@ -60,15 +60,15 @@ def test_the_prior_is_the_inference_plan_re_timed_to_the_live_demonstration(rend
     first = task.frames.planned.demos[0]
     sources = [ReplaySource(task.context_clouds[0, 0].numpy(), first.action)]
     live_cloud = PseudoTaskStream(stream_config())._render([task.frames])[0][-1].numpy()  # the task's clouds again
-    plan = plan_replay("t", sources, live_cloud, REPLAY_REGISTRATION, per_object=True)
+    plan = plan_replay("t", sources, live_cloud, REPLAY_REGISTRATION, "per_object")
     steps = task.frames.live[:, None] + np.arange(8)
     expected = plan.actions[aligned_frames(live, first, steps)]
     np.testing.assert_allclose(task.replay_prior, expected, atol=1e-6)
     poses_from_vectors(task.replay_prior.reshape(-1, 8))  # valid poses
 
 
-@pytest.mark.parametrize("per_object", [True, False])
-def test_a_live_demonstration_from_the_context_gets_its_own_actions_back(rendered, per_object):
+@pytest.mark.parametrize("plan", ["per_object", "whole", "anchored"])
+def test_a_live_demonstration_from_the_context_gets_its_own_actions_back(rendered, plan):
     """Registration of a cloud onto itself is the identity and the re-timing of a demonstration onto itself too, so
     the prior of a live demonstration that is context demonstration 0 is its own actions."""
     task = rendered[1]
@@ -76,7 +76,7 @@ def test_a_live_demonstration_from_the_context_gets_its_own_actions_back(rendere
     planned = dataclasses.replace(task.frames.planned, demos=[*context, context[0]])
     first_cloud = task.context_clouds[0, 0].numpy()
     frames = np.array([0, context[0].num_frames // 2, context[0].num_frames - 3])
-    prior = replay_prior_actions(planned, first_cloud, first_cloud, frames, 8, per_object)
+    prior = replay_prior_actions(planned, first_cloud, first_cloud, frames, 8, plan)
     steps = np.minimum(frames[:, None] + np.arange(8), context[0].num_frames - 1)
     np.testing.assert_allclose(prior[..., :3], context[0].action[steps][..., :3], atol=2e-3)
     np.testing.assert_array_equal(prior[..., 7], context[0].action[steps][..., 7])

@@ -1,0 +1,154 @@
+"""A demonstration's actions cut into segments, each anchored to what it approaches: the structure of the anchored
+replay plan (:func:`~.replay_plan.plan_replay` with ``plan="anchored"``).
+
+A segment ends where the demonstrator acted or changed course, read off the commanded actions ``(F, 8)`` (the
+contract's layout: xyz, quaternion xyzw, gripper):
+
+* at a gripper change: the first action with the new command (the pose where the gripper closed or opened);
+* where the EE nearly stops (:class:`~.waypoints.StopCriterion`'s thresholds, on the commanded poses): the run's
+  first action;
+* where the path turns: the vertices of the Ramer-Douglas-Peucker simplification of the positions between the
+  other ends, at ``turn_tolerance`` (m);
+* at the last action.
+
+Each segment's end pose is its bottleneck pose (MT3's term): it is anchored to the demonstrated object (a component
+of the first cloud, :func:`~.replay_plan.split_objects`) nearest to it. At a gripper change the nearest object is
+taken however far (a grasp acts on something), and a release excludes the object grasped at the close before it
+(the grasped object sits in the hand, away from where the first cloud shows it); elsewhere only an object within
+``anchor_radius`` anchors the segment; a segment that approaches nothing (a lift, a carry, a retreat into free
+space) is in transit between the anchored segments around it (anchor ``-1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..contract import poses_from_vectors
+from ..geometry.se3 import rotation_angle
+from .waypoints import StopCriterion
+
+
+@dataclass(frozen=True)
+class SegmentConfig:
+    """Where segments end and what anchors them (module docstring): ``turn_tolerance`` (m) of the path
+    simplification, ``anchor_radius`` (m) within which an object anchors a segment that ends with no gripper change,
+    and the ``stop`` criterion."""
+
+    turn_tolerance: float = 0.01
+    anchor_radius: float = 0.05
+    stop: StopCriterion = StopCriterion()
+
+    def __post_init__(self) -> None:
+        if self.turn_tolerance <= 0 or self.anchor_radius <= 0:
+            raise ValueError(f"turn_tolerance and anchor_radius must be positive, got {self.turn_tolerance}, "
+                             f"{self.anchor_radius}")
+
+
+@dataclass(frozen=True)
+class Segments:
+    """``ends (S,)``: the last action of each segment, increasing, the last one ``F − 1``; ``anchors (S,)``: the
+    index of the object each segment is anchored to, into the object list it was anchored against, ``-1`` for a
+    segment in transit."""
+
+    ends: np.ndarray
+    anchors: np.ndarray
+
+    def anchored(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ends ``(A,)`` of the anchored segments and their anchors ``(A,)``, in order."""
+        keep = self.anchors >= 0
+        return self.ends[keep], self.anchors[keep]
+
+    def of_actions(self) -> np.ndarray:
+        """``(F,)``: the segment each action belongs to (action ``i`` to the first segment with ``ends ≥ i``)."""
+        return np.searchsorted(self.ends, np.arange(self.ends[-1] + 1))
+
+
+def segment_ends(actions: np.ndarray, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
+    """The last action of each segment of ``actions (F, 8)`` (module docstring), ``(S,)`` int64, increasing, ending
+    with ``F − 1``."""
+    actions = np.asarray(actions, dtype=np.float64)
+    if actions.ndim != 2 or actions.shape[1] != 8 or len(actions) < 1:
+        raise ValueError(f"actions must be (F, 8) with F ≥ 1, got {actions.shape}")
+    last = len(actions) - 1
+    opened = actions[:, 7] > 0.5
+    changes = np.flatnonzero(opened[1:] != opened[:-1]) + 1
+    ends = set(changes.tolist()) | set(_stop_starts(actions, config.stop).tolist()) | {last}
+    fixed = sorted(ends | {0})
+    for start, stop in zip(fixed[:-1], fixed[1:], strict=True):
+        ends |= {start + int(vertex) for vertex in _turns(actions[start:stop + 1, :3], config.turn_tolerance)}
+    if last > 0:
+        ends.discard(0)
+    return np.asarray(sorted(ends), dtype=np.int64)
+
+
+def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: SegmentConfig = SegmentConfig()
+                    ) -> Segments | None:
+    """The segments of ``actions (F, 8)`` (world frame) anchored to ``objects`` (clouds ``(P_i, 3)``, world frame, as
+    the demonstration's first frame shows them), or None where no segment approaches any object."""
+    if not objects:
+        return None
+    actions = np.asarray(actions, dtype=np.float64)
+    ends = segment_ends(actions, config)
+    opened = actions[:, 7] > 0.5
+    anchors: list[int] = []
+    grasped: int | None = None
+    for end in ends:
+        changed = end > 0 and opened[end] != opened[end - 1]
+        releasing = changed and bool(opened[end])
+        exclude = grasped if releasing and len(objects) > 1 else None
+        nearest, distance = _nearest_object(objects, actions[end, :3], exclude)
+        anchored = changed or distance <= config.anchor_radius
+        anchors.append(nearest if anchored else -1)
+        if changed:
+            grasped = None if releasing else nearest
+    if max(anchors) < 0:
+        return None
+    return Segments(ends=ends, anchors=np.asarray(anchors, dtype=np.int64))
+
+
+def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None) -> tuple[int, float]:
+    """The object (clouds ``(P_i, 3)``) with the point nearest to ``position (3,)``, other than ``exclude``, and
+    that distance (m)."""
+    distances = [np.inf if index == exclude else float(np.min(np.linalg.norm(points - position, axis=1)))
+                 for index, points in enumerate(objects)]
+    nearest = int(np.argmin(distances))
+    return nearest, distances[nearest]
+
+
+def _stop_starts(actions: np.ndarray, stop: StopCriterion) -> np.ndarray:
+    """First action of every run of at least ``stop.min_steps`` nearly still steps of the commanded poses."""
+    T_world_ee, _ = poses_from_vectors(actions)
+    moved = np.linalg.norm(np.diff(actions[:, :3], axis=0), axis=1)
+    turned = rotation_angle(T_world_ee[:-1, :3, :3], T_world_ee[1:, :3, :3])
+    still = (moved < stop.translation) & (turned < stop.rotation)
+    starts, run = [], 0
+    for step, is_still in enumerate(still):
+        run = run + 1 if is_still else 0
+        if run == stop.min_steps:
+            starts.append(step - stop.min_steps + 1)
+    return np.asarray(starts, dtype=np.int64)
+
+
+def _turns(positions: np.ndarray, tolerance: float) -> list[int]:
+    """Inner vertices (indices into ``positions (F, 3)``) of the Ramer-Douglas-Peucker simplification of the path at
+    ``tolerance`` (m)."""
+    if len(positions) < 3:
+        return []
+    start, end = positions[0], positions[-1]
+    chord = end - start
+    length = float(np.linalg.norm(chord))
+    offsets = positions[1:-1] - start
+    if length < 1e-9:
+        distances = np.linalg.norm(offsets, axis=1)
+    else:
+        distances = np.linalg.norm(np.cross(offsets, chord / length), axis=1)
+    farthest = int(np.argmax(distances)) + 1
+    if distances[farthest - 1] <= tolerance:
+        return []
+    return (_turns(positions[:farthest + 1], tolerance) + [farthest]
+            + [farthest + vertex for vertex in _turns(positions[farthest:], tolerance)])
+
+
+__all__ = ["SegmentConfig", "Segments", "anchor_segments", "segment_ends"]

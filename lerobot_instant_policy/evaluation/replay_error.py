@@ -1,0 +1,102 @@
+"""How far a replay plan lies from what the demonstrator did in the same live scene: the error of the prior an
+``instant_policy`` starts from, where ground truth exists.
+
+A demonstration recorded in a scene is that scene's ground truth (the suite's scripted demonstrator, MetaWorld's
+expert, a pseudo-task's live demonstration). :func:`plan_error` plans the replay of context demonstrations onto the
+live demonstration's first cloud (:func:`~..data.replay_plan.plan_replay`, one of
+:data:`~..data.replay_plan.REPLAY_PLANS`) and measures it at the live demonstration's bottleneck poses, the ends of
+its segments (:func:`~..data.replay_segments.segment_ends`), where a wrong plan fails a task:
+
+* a gripper change (``"gripper"``) is matched to the plan's gripper change of the same order and kind (the k-th
+  close to the k-th close); a live change the plan lacks counts as a ``missed`` gripper change;
+* a stop, a turn (``"waypoint"``) and the last action (``"end"``) are matched to the planned step that dynamic time
+  warping aligns with the live action (:func:`~.replay_priors.plan_steps` on the live actions): the plan's pace is
+  not an error.
+
+Each bottleneck gives the translation (m) and rotation (rad) between the planned and the demonstrated commanded EE
+pose; the rotation is the smaller of the two a parallel gripper cannot tell apart (turned half a turn about its
+approach axis, EE z, it grasps alike). :func:`error_quantiles` pools them into the median and 90th percentile per kind.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..contract import poses_from_vectors
+from ..data.demonstrations import Demonstration
+from ..data.replay_plan import REPLAY_REGISTRATION, plan_replay
+from ..data.replay_segments import segment_ends
+from ..geometry.se3 import pose_distance, rotation_angle
+from .replay_priors import plan_steps
+
+BOTTLENECK_KINDS = ("gripper", "waypoint", "end")
+HALF_TURN_ABOUT_Z = np.diag([-1.0, -1.0, 1.0])  # the parallel gripper's symmetry, in the EE frame
+
+
+def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str) -> dict:
+    """The error of the ``plan`` replay of ``context`` in ``live``'s scene at ``live``'s bottleneck poses (module
+    docstring): ``{"bottlenecks": [{"frame", "kind", "translation_m", "rotation_rad"}, ...], "missed": int,
+    "demo_index": int}`` (``demo_index``: the context demonstration the plan replays)."""
+    replay = plan_replay(live.task, list(context), live.points_world[0], REPLAY_REGISTRATION, plan)
+    planned = replay.actions.astype(np.float64)
+    live_action = live.action.astype(np.float64)
+    ends = segment_ends(live_action)
+    aligned = plan_steps(live_action, planned)
+    live_changes = _gripper_changes(live_action)
+    plan_changes = _gripper_changes(planned)
+    rows, missed = [], 0
+    for end in ends.tolist():
+        if end in live_changes:
+            kind_of_change, order = live_changes[end]
+            same = [step for step, (kind, k) in plan_changes.items() if kind == kind_of_change and k == order]
+            if not same:
+                missed += 1
+                continue
+            step, kind = same[0], "gripper"
+        else:
+            step, kind = int(aligned[end]), "end" if end == len(live_action) - 1 else "waypoint"
+        T_planned, _ = poses_from_vectors(planned[step])
+        T_live, _ = poses_from_vectors(live_action[end])
+        translation, rotation = pose_distance(T_planned, T_live)
+        rotation = min(rotation, rotation_angle(T_planned[:3, :3] @ HALF_TURN_ABOUT_Z, T_live[:3, :3]))
+        rows.append({"frame": end, "kind": kind, "translation_m": float(translation), "rotation_rad": float(rotation)})
+    return {"bottlenecks": rows, "missed": missed, "demo_index": replay.demo_index}
+
+
+def error_quantiles(errors: Sequence[dict]) -> dict:
+    """Median and 90th percentile of the translation (mm) and rotation (degrees) of the bottlenecks of
+    :func:`plan_error` results, pooled and per kind, with the bottleneck counts and the missed gripper changes."""
+    rows = [row for error in errors for row in error["bottlenecks"]]
+
+    def summary(selected: list[dict]) -> dict:
+        if not selected:
+            return {"count": 0}
+        translation = 1000.0 * np.array([row["translation_m"] for row in selected])
+        rotation = np.rad2deg([row["rotation_rad"] for row in selected])
+        return {"count": len(selected),
+                "translation_mm": {"median": round(float(np.median(translation)), 1),
+                                   "p90": round(float(np.percentile(translation, 90)), 1)},
+                "rotation_deg": {"median": round(float(np.median(rotation)), 1),
+                                 "p90": round(float(np.percentile(rotation, 90)), 1)}}
+
+    result = {"all": summary(rows)}
+    result.update({kind: summary([row for row in rows if row["kind"] == kind]) for kind in BOTTLENECK_KINDS})
+    result["missed_gripper_changes"] = int(sum(error["missed"] for error in errors))
+    return result
+
+
+def _gripper_changes(actions: np.ndarray) -> dict[int, tuple[str, int]]:
+    """``{action index: (kind, order)}`` of the gripper changes of ``actions (F, 8)``: kind ``"close"`` or
+    ``"open"``, order counting the changes of that kind before it."""
+    opened = actions[:, 7] > 0.5
+    changes, counts = {}, {"close": 0, "open": 0}
+    for index in (np.flatnonzero(opened[1:] != opened[:-1]) + 1).tolist():
+        kind = "open" if opened[index] else "close"
+        changes[index] = (kind, counts[kind])
+        counts[kind] += 1
+    return changes
+
+
+__all__ = ["BOTTLENECK_KINDS", "error_quantiles", "plan_error"]

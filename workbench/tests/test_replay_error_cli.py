@@ -1,0 +1,42 @@
+"""``python -m workbench.cli.replay_error``: the replay plans' errors over demonstration-set folders as the suite
+records them, each set's live scenes planned from the next set; bad input refused with exit status 2."""
+
+from __future__ import annotations
+
+import json
+
+from synthetic_demos import carry_demo, object_pose
+
+from lerobot_instant_policy.data.lerobot_format import create_dataset, write_episode
+from workbench.cli.replay_error import main
+
+SCENES = [(object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0)),
+          (object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0))]
+
+
+def write_sets(root) -> None:
+    """Two sets of one carry demonstration each, in two scenes where the objects moved apart."""
+    for index, scene in enumerate(SCENES):
+        demo = carry_demo(*scene, seed=index)
+        dataset = create_dataset("local/put_on_duck", root / f"put_on_duck-n1-s{100 * index}")
+        write_episode(dataset, demo.points_world, demo.state, demo.action, demo.task)
+        dataset.finalize()
+
+
+def test_replay_error_reports_each_plan_per_task_and_pooled(tmp_path, capsys):
+    write_sets(tmp_path)
+    assert main([str(tmp_path), "--plans", "whole,anchored"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["tasks"] == {"put_on_duck": 2}
+    anchored, whole = result["plans"]["anchored"], result["plans"]["whole"]
+    assert anchored["all"]["gripper"]["count"] == 4  # two live scenes, a grasp and a release each
+    assert anchored["per_task"]["put_on_duck"] == anchored["all"]
+    assert anchored["all"]["gripper"]["translation_mm"]["p90"] < 6.0
+    assert whole["all"]["gripper"]["translation_mm"]["p90"] > 30.0
+
+
+def test_unknown_plans_and_folders_without_two_sets_are_refused(tmp_path, capsys):
+    assert main([str(tmp_path), "--plans", "whole,segments"]) == 2
+    assert "unknown plans ['segments']" in capsys.readouterr().err
+    assert main([str(tmp_path)]) == 2
+    assert "no task with two demonstration sets" in capsys.readouterr().err
