@@ -142,6 +142,11 @@ def test_the_stream_plans_priors_as_the_policy_trains_and_runs_them():
     stream = StreamConfig(generation=GenerationConfig(seed=11))
     refined = stream_config_for(InstantPolicyConfig(device="cpu", preset="refined"), stream)
     faithful = stream_config_for(InstantPolicyConfig(device="cpu"), stream)
-    assert (refined.replay_priors, refined.replay_per_object) == (True, True)
-    assert (faithful.replay_priors, faithful.replay_per_object) == (False, False)
+    anchored = stream_config_for(InstantPolicyConfig(device="cpu", preset="refined", replay_per_object=False,
+                                                     replay_anchored=True), stream)
+    assert (refined.replay_priors, refined.replay_plan) == (True, "per_object")
+    assert (faithful.replay_priors, faithful.replay_plan) == (False, "whole")
+    assert (anchored.replay_priors, anchored.replay_plan) == (True, "anchored")
+    with pytest.raises(ValueError, match="not both"):
+        InstantPolicyConfig(device="cpu", preset="refined", replay_anchored=True)
     assert np.isclose(InstantPolicyConfig(device="cpu", preset="refined").refine_fraction, 0.5)
