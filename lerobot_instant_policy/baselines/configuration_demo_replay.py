@@ -63,7 +63,7 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
         if self.n_obs_steps != 1:
             raise ValueError(f"demo_replay reads the current observation only: n_obs_steps must be 1, got {self.n_obs_steps}")
         self.registration_config()
-        replay_plan_name(self.registration_per_object, self.registration_anchored)
+        self.replay_plan()
 
     def registration_config(self) -> RegistrationConfig:
         """The ``RegistrationConfig`` these fields describe (validated)."""
@@ -72,6 +72,11 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
             overlap=self.registration_overlap,
             fine_points=self.registration_points,
         )
+
+    def replay_plan(self) -> str:
+        """The replay plan ``registration_per_object`` and ``registration_anchored`` name
+        (:data:`~..data.replay_plan.REPLAY_PLANS`)."""
+        return replay_plan_name(self.registration_per_object, self.registration_anchored)
 
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)`` and writes ``action (8,)``."""

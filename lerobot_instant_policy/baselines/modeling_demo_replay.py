@@ -15,7 +15,7 @@ from torch import Tensor
 
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, DemonstrationSource
-from ..data.replay_plan import ReplayPlan, plan_replay, replay_plan_name
+from ..data.replay_plan import ReplayPlan, plan_replay
 from .configuration_demo_replay import DemoReplayConfig
 from .untrained import ParameterFreePolicyMixin
 
@@ -106,5 +106,4 @@ class DemoReplayPolicy(ParameterFreePolicyMixin, PreTrainedPolicy):
     def _plan(self, task: str, cloud_now: np.ndarray) -> ReplayPlan:
         """Register every demonstration of ``task`` onto ``cloud_now (P, 3)``; plan the best one's actions."""
         return plan_replay(task, self.demonstrations(task), cloud_now, self.config.registration_config(),
-                           replay_plan_name(self.config.registration_per_object,
-                                                            self.config.registration_anchored))
+                           self.config.replay_plan())

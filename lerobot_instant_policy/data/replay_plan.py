@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 from ..contract import poses_from_vectors, vectors_from_poses
 from ..geometry.registration import RegistrationConfig, RegistrationResult, register_rigid
 from .demonstrations import Demonstration
-from .replay_segments import SegmentConfig, anchor_segments
+from .replay_segments import SegmentConfig, anchor_segments, nearest_object
 
 # The registration of the replay an instant_policy denoises from (``replay_init_strength``) and trains to refine:
 # yaw-only, tabletop objects standing upright (the demo_replay baseline's default too).
@@ -112,9 +112,9 @@ def plan_replay(
         live_objects = split_objects(cloud_now)
         planner = _plan_per_object if plan == "per_object" else _plan_anchored
         plans = [planner(task, index, demo, live_objects, config) for index, demo in enumerate(demonstrations)]
-        plans = [plan for plan in plans if plan is not None]
+        plans = [candidate for candidate in plans if candidate is not None]
         if plans:
-            return min(plans, key=lambda plan: np.mean([fit.fit_error for fit in plan.object_fits]))
+            return min(plans, key=lambda candidate: np.mean([fit.fit_error for fit in candidate.object_fits]))
     fits = [register_rigid(demo.first_cloud, cloud_now, config) for demo in demonstrations]
     best = int(np.argmin([fit.fit_error for fit in fits]))
     T_now_demo = fits[best].T_target_source
@@ -153,8 +153,8 @@ def _plan_per_object(
         return None
     release = int(reopens[0])
     positions = demo.action[:, :3]
-    grasped = _nearest_object(demo_objects, positions[close], exclude=None)
-    reference = _nearest_object(demo_objects, positions[release], exclude=grasped)
+    grasped, _ = nearest_object(demo_objects, positions[close])
+    reference, _ = nearest_object(demo_objects, positions[release], exclude=grasped)
     fits = _match_objects([demo_objects[grasped], demo_objects[reference]], live_objects, config)
     T_A, T_B = (fit.T_target_source for fit in fits)
     T_world_ee, gripper_open = poses_from_vectors(demo.action)
@@ -195,13 +195,6 @@ def _plan_anchored(
     return ReplayPlan(task=task, demo_index=demo_index, T_now_demo=first.T_target_source, actions=actions,
                       registration=first, T_now_demo_per_action=T_per_action,
                       object_fits=tuple(fits[index] for index in used))
-
-
-def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None) -> int:
-    """Index of the object (``(P_i, 3)`` clouds) with the point nearest to ``position (3,)``, other than ``exclude``."""
-    distances = [np.inf if index == exclude else float(np.min(np.linalg.norm(points - position, axis=1)))
-                 for index, points in enumerate(objects)]
-    return int(np.argmin(distances))
 
 
 def _match_objects(

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..contract import poses_from_vectors
-from ..geometry.se3 import rotation_angle
-from .waypoints import StopCriterion
+from ..geometry.se3 import pose_distance
+from .waypoints import StopCriterion, still_runs
 
 
 @dataclass(frozen=True)
@@ -60,10 +60,6 @@ class Segments:
         keep = self.anchors >= 0
         return self.ends[keep], self.anchors[keep]
 
-    def of_actions(self) -> np.ndarray:
-        """``(F,)``: the segment each action belongs to (action ``i`` to the first segment with ``ends ≥ i``)."""
-        return np.searchsorted(self.ends, np.arange(self.ends[-1] + 1))
-
 
 def segment_ends(actions: np.ndarray, config: SegmentConfig = SegmentConfig()) -> np.ndarray:
     """The last action of each segment of ``actions (F, 8)`` (module docstring), ``(S,)`` int64, increasing, ending
@@ -72,9 +68,7 @@ def segment_ends(actions: np.ndarray, config: SegmentConfig = SegmentConfig()) -
     if actions.ndim != 2 or actions.shape[1] != 8 or len(actions) < 1:
         raise ValueError(f"actions must be (F, 8) with F ≥ 1, got {actions.shape}")
     last = len(actions) - 1
-    opened = actions[:, 7] > 0.5
-    changes = np.flatnonzero(opened[1:] != opened[:-1]) + 1
-    ends = set(changes.tolist()) | set(_stop_starts(actions, config.stop).tolist()) | {last}
+    ends = set(gripper_changes(actions).tolist()) | set(_stop_starts(actions, config.stop)) | {last}
     fixed = sorted(ends | {0})
     for start, stop in zip(fixed[:-1], fixed[1:], strict=True):
         ends |= {start + int(vertex) for vertex in _turns(actions[start:stop + 1, :3], config.turn_tolerance)}
@@ -98,7 +92,7 @@ def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: Segm
         changed = end > 0 and opened[end] != opened[end - 1]
         releasing = changed and bool(opened[end])
         exclude = grasped if releasing and len(objects) > 1 else None
-        nearest, distance = _nearest_object(objects, actions[end, :3], exclude)
+        nearest, distance = nearest_object(objects, actions[end, :3], exclude)
         anchored = changed or distance <= config.anchor_radius
         anchors.append(nearest if anchored else -1)
         if changed:
@@ -108,7 +102,7 @@ def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: Segm
     return Segments(ends=ends, anchors=np.asarray(anchors, dtype=np.int64))
 
 
-def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None) -> tuple[int, float]:
+def nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int | None = None) -> tuple[int, float]:
     """The object (clouds ``(P_i, 3)``) with the point nearest to ``position (3,)``, other than ``exclude``, and
     that distance (m)."""
     distances = [np.inf if index == exclude else float(np.min(np.linalg.norm(points - position, axis=1)))
@@ -117,18 +111,18 @@ def _nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: in
     return nearest, distances[nearest]
 
 
-def _stop_starts(actions: np.ndarray, stop: StopCriterion) -> np.ndarray:
+def gripper_changes(actions: np.ndarray) -> np.ndarray:
+    """``(C,)`` int64: the actions of ``actions (F, 8)`` whose gripper command (thresholded at 0.5) differs from the
+    one before."""
+    opened = np.asarray(actions)[:, 7] > 0.5
+    return np.flatnonzero(opened[1:] != opened[:-1]) + 1
+
+
+def _stop_starts(actions: np.ndarray, stop: StopCriterion) -> list[int]:
     """First action of every run of at least ``stop.min_steps`` nearly still steps of the commanded poses."""
     T_world_ee, _ = poses_from_vectors(actions)
-    moved = np.linalg.norm(np.diff(actions[:, :3], axis=0), axis=1)
-    turned = rotation_angle(T_world_ee[:-1, :3, :3], T_world_ee[1:, :3, :3])
-    still = (moved < stop.translation) & (turned < stop.rotation)
-    starts, run = [], 0
-    for step, is_still in enumerate(still):
-        run = run + 1 if is_still else 0
-        if run == stop.min_steps:
-            starts.append(step - stop.min_steps + 1)
-    return np.asarray(starts, dtype=np.int64)
+    moved, turned = pose_distance(T_world_ee[:-1], T_world_ee[1:])
+    return [start for start, _ in still_runs((moved < stop.translation) & (turned < stop.rotation), stop.min_steps)]
 
 
 def _turns(positions: np.ndarray, tolerance: float) -> list[int]:
@@ -151,4 +145,4 @@ def _turns(positions: np.ndarray, tolerance: float) -> list[int]:
             + [farthest + vertex for vertex in _turns(positions[farthest:], tolerance)])
 
 
-__all__ = ["SegmentConfig", "Segments", "anchor_segments", "segment_ends"]
+__all__ = ["SegmentConfig", "Segments", "anchor_segments", "gripper_changes", "nearest_object", "segment_ends"]

@@ -79,7 +79,8 @@ def extract_waypoints(
     translation, rotation = pose_distance(T_world_ee[:-1], T_world_ee[1:])
     is_open = gripper_open > 0.5
     changes = np.flatnonzero(is_open[1:] != is_open[:-1]) + 1
-    stops = _stop_frames((translation < stop.translation) & (rotation < stop.rotation), stop.min_steps, frames)
+    runs = still_runs((translation < stop.translation) & (rotation < stop.rotation), stop.min_steps)
+    stops = [start for start, end in runs if start > 0 and end < frames - 1]  # the first and last frame are in
 
     chosen = {0, frames - 1}
     for group in (changes, changes - 1, stops):
@@ -91,19 +92,19 @@ def extract_waypoints(
     return _fill_evenly(sorted(chosen), path, num_waypoints)
 
 
-def _stop_frames(still: np.ndarray, min_steps: int, frames: int) -> list[int]:
-    """First frame of every run of at least ``min_steps`` still steps (``still (F − 1,)``: step ``t → t + 1``),
-    leaving out runs that start at frame 0 or reach frame ``F − 1``."""
-    stops = []
+def still_runs(still: np.ndarray, min_steps: int) -> list[tuple[int, int]]:
+    """Every run of at least ``min_steps`` still steps (``still (F − 1,)``: step ``t → t + 1``) as ``(first frame,
+    first frame after the run)``: the EE stands still from the one to the other."""
+    runs = []
     start = None
     for step, is_still in enumerate(np.append(still, False)):
         if is_still and start is None:
             start = step
         elif not is_still and start is not None:
-            if step - start >= min_steps and start > 0 and step < frames - 1:
-                stops.append(start)
+            if step - start >= min_steps:
+                runs.append((start, step))
             start = None
-    return stops
+    return runs
 
 
 def _thin_evenly(candidates: list[int], budget: int) -> list[int]:

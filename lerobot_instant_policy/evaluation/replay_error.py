@@ -27,7 +27,7 @@ import numpy as np
 from ..contract import poses_from_vectors
 from ..data.demonstrations import Demonstration
 from ..data.replay_plan import REPLAY_REGISTRATION, plan_replay
-from ..data.replay_segments import segment_ends
+from ..data.replay_segments import gripper_changes, segment_ends
 from ..geometry.se3 import pose_distance, rotation_angle
 from .replay_priors import plan_steps
 
@@ -90,10 +90,9 @@ def error_quantiles(errors: Sequence[dict]) -> dict:
 def _gripper_changes(actions: np.ndarray) -> dict[int, tuple[str, int]]:
     """``{action index: (kind, order)}`` of the gripper changes of ``actions (F, 8)``: kind ``"close"`` or
     ``"open"``, order counting the changes of that kind before it."""
-    opened = actions[:, 7] > 0.5
     changes, counts = {}, {"close": 0, "open": 0}
-    for index in (np.flatnonzero(opened[1:] != opened[:-1]) + 1).tolist():
-        kind = "open" if opened[index] else "close"
+    for index in gripper_changes(actions).tolist():
+        kind = "open" if actions[index, 7] > 0.5 else "close"
         changes[index] = (kind, counts[kind])
         counts[kind] += 1
     return changes
