@@ -73,6 +73,10 @@ MODEL_DIR, STATE_DIR = "pretrained_model", "training_state"
 AVERAGE_MODEL_DIR = "pretrained_model_average"  # a save's moving average as a pretrained_model, when it keeps one
 
 
+# the validation's replay start (StandingConfig's fields of that name): part of a cached result's key where given
+REPLAY_OPTIONS = ("replay_init_strength", "replay_per_object", "replay_anchored")
+
+
 class StandingError(RuntimeError):
     """A run that could not train, save or validate (the message says which step and shows its output)."""
 
@@ -86,8 +90,9 @@ class StandingConfig:
     (``lerobot-ip-train --average.decay``; None: none), validated beside the raw weights. ``device``: where the update
     runs; ``generator_device``: where the pool's generators render and encode (None: ``device``; on a GPU machine its
     CPU cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags.
-    ``replay_init_strength`` / ``replay_per_object``: validate every checkpoint started from the replay of its
-    demonstrations (``lerobot-ip-action-error --replay-init-strength``; None: as the checkpoint's config says)."""
+    ``replay_init_strength`` / ``replay_per_object`` / ``replay_anchored``: validate every checkpoint started from the
+    replay of its demonstrations, so planned (``lerobot-ip-action-error --replay-init-strength``; None: as the
+    checkpoint's config says)."""
 
     deadline_s: float = 9000.0
     validate_s: float = 420.0
@@ -122,6 +127,7 @@ class StandingConfig:
     lerobot_args: list[str] = field(default_factory=list)
     replay_init_strength: float | None = None
     replay_per_object: bool | None = None
+    replay_anchored: bool | None = None
 
     def validate(self) -> None:
         if not 0 < self.validate_s < self.deadline_s:
@@ -300,7 +306,7 @@ def validation_record(results: dict) -> dict:
 def validation_key(config: StandingConfig) -> dict:
     """What a validation result depends on besides the checkpoint: the sets' presets (SHA-256), their size, the
     setting, the device and, where given, the replay start."""
-    replay = {name: getattr(config, name) for name in ("replay_init_strength", "replay_per_object")
+    replay = {name: getattr(config, name) for name in REPLAY_OPTIONS
               if getattr(config, name) is not None}
     return {"presets_sha256": {name: hashlib.sha256(Path(preset).read_bytes()).hexdigest()
                                for name, preset in VALIDATION_CONFIGS.items()},
@@ -333,8 +339,9 @@ def validate(config: StandingConfig, checkpoint: Path, root: Path) -> dict:
             "--N", str(EVAL_N), "--L", str(EVAL_L), "--no-untrained", "--json", "--device", config.device]
         if config.replay_init_strength is not None:
             command += ["--replay-init-strength", str(config.replay_init_strength)]
-        if config.replay_per_object is not None:
-            command += ["--replay-per-object", "true" if config.replay_per_object else "false"]
+        for switch in ("replay_per_object", "replay_anchored"):
+            if getattr(config, switch) is not None:
+                command += [f"--{switch.replace('_', '-')}", "true" if getattr(config, switch) else "false"]
         done = subprocess.run(command, capture_output=True, text=True, env=validation_env())
         if done.returncode != 0:
             raise StandingError(f"validation on {name} failed: {done.stderr[-2000:]}")

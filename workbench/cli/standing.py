@@ -19,6 +19,7 @@ from pathlib import Path
 from ..standing import (
     CURVE_FILE,
     PROG,
+    REPLAY_OPTIONS,
     STANDING,
     StandingConfig,
     StandingError,
@@ -47,6 +48,23 @@ def add_run_options(command: argparse.ArgumentParser, defaults: StandingConfig) 
         command.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
     command.add_argument("--lerobot-arg", dest="lerobot_args", action="append", default=[], metavar="FLAG",
                          help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")
+    add_replay_options(command)
+
+
+def add_replay_options(command: argparse.ArgumentParser) -> None:
+    """The validation's replay start (:class:`StandingConfig`'s ``replay_*`` fields; unset: the checkpoint's)."""
+    command.add_argument("--replay-init-strength", type=float,
+                         help="validate every checkpoint started from the replay, noised to this strength")
+    for name, plan in (("replay_per_object", "per object"), ("replay_anchored", "per segment, anchored")):
+        command.add_argument(f"--{name.replace('_', '-')}", choices=["true", "false"],
+                             help=f"that replay planned {plan}")
+
+
+def replay_options(args: argparse.Namespace) -> dict:
+    """:func:`add_replay_options`' values as :class:`StandingConfig`'s fields."""
+    switches = {name: None if getattr(args, name) is None else getattr(args, name) == "true"
+                for name in ("replay_per_object", "replay_anchored")}
+    return {"replay_init_strength": args.replay_init_strength, **switches}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,9 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     paired.add_argument("--device", default=defaults.device)
     for name in ("val_tasks", "val_frames_per_task", "val_workers"):
         paired.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
-    paired.add_argument("--replay-init-strength", type=float,
-                        help="validate every checkpoint started from the replay, noised to this strength")
-    paired.add_argument("--replay-per-object", choices=["true", "false"], help="that replay planned per object")
+    add_replay_options(paired)
     mean = commands.add_parser("average", help="write the mean of saves' weights as a pretrained_model")
     mean.add_argument("checkpoints", type=Path, nargs="+", help="pretrained_model folders or saves holding one")
     mean.add_argument("--out", type=Path, required=True, help="a new folder for the averaged pretrained_model")
@@ -89,9 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "compare":
             config = StandingConfig(work=args.work, device=args.device, val_tasks=args.val_tasks,
                                     val_frames_per_task=args.val_frames_per_task, val_workers=args.val_workers,
-                                    replay_init_strength=args.replay_init_strength,
-                                    replay_per_object=None if args.replay_per_object is None
-                                    else args.replay_per_object == "true")
+                                    **replay_options(args))
             config.validate()
             result = compare(config, args.checkpoints, Path(args.work) / "validation")
         elif args.command == "average":
@@ -101,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
             result = trend(json.loads(args.curve.read_text())["points"], args.min_samples)
         else:
             options = {key: value for key, value in vars(args).items()
-                       if key not in ("command", "hours", "standing", "curve", "train_dir")}
+                       if key not in ("command", "hours", "standing", "curve", "train_dir", *REPLAY_OPTIONS)}
+            options.update(replay_options(args))
             if args.hours is not None:
                 options["deadline_s"] = args.hours * 3600
             config = StandingConfig(**options)
