@@ -438,7 +438,7 @@ def run(config: StandingConfig, standing: Path = STANDING, curve_file: Path = CU
     resume_from = (_stage_resume(start, train_dir, config.base_lr, config.weight_decay)
                    if start is not None else None)
     log_path = train_dir.with_suffix(".log")
-    train_dir.mkdir(parents=True, exist_ok=True)
+    log_path.parent.mkdir(parents=True, exist_ok=True)  # a fresh start's train_dir is LeRobot's to create
     env = {**os.environ, "OMP_NUM_THREADS": str(config.train_threads), "HF_HUB_OFFLINE": "1"}
     with open(log_path, "w") as log:
         training = subprocess.Popen(train_command(config, resume_from, train_dir), stdout=log,
