@@ -6,10 +6,11 @@ run's new start, the best save kept apart for shipping, and a point on the scali
 ``workbench/scripts/gpu_standing.sh`` (``run --device cuda --generator-device cpu ... --out DIR``) and then here
 ``python -m workbench.cli.standing accept FOLDER``. A run:
 
-1. starts from the last save, ``checkpoints/stream/last/`` (LeRobot's ``pretrained_model/`` and ``training_state/``:
-   weights, optimizer, scheduler, step, the pool's next task), resumed with ``lerobot-ip-train --resume=true``;
-   at the very first start from ``--start`` (a LeRobot step checkpoint, resumed the same way) or else the shipped
-   checkpoint (its weights, a fresh optimizer);
+1. starts from the last save, ``checkpoints/stream/last/`` (LeRobot's ``pretrained_model/`` and ``training_state/``,
+   kept compactly: :func:`write_compact`), resumed with ``lerobot-ip-train --resume=true``, its optimizer first
+   rebuilding the moments the compact save leaves out (``moment_rebuild_steps`` at learning rate 0,
+   :mod:`lerobot_instant_policy.policy.optimizer`); at the very first start from ``--start`` (a LeRobot step
+   checkpoint, resumed the same way) or else the shipped checkpoint (its weights, a fresh optimizer);
 2. trains with ``lerobot-ip-train --pool`` (:mod:`lerobot_instant_policy.policy.task_pool`) on the stream of
    ``stream_config`` with the run's seed, LeRobot saving every ``save_freq`` steps, while the two validation sets
    (``VALIDATION_CONFIGS``: held-out objects moved between demonstrations, or kept in one layout) are generated
@@ -18,8 +19,8 @@ run's new start, the best save kept apart for shipping, and a point on the scali
    last complete save (one with the pool's state, written last), which it validates with ``lerobot-ip-action-error``
    (K = 4, N = 2, L = 10, ``val_tasks`` × ``val_frames_per_task`` frames) on both sets, and with ``average_decay``
    the moving average of its weights too (:func:`validate_average`);
-4. keeps it (:func:`keep`): the save replaces ``checkpoints/stream/last/`` whether or not it is better (a metric may
-   dip before it improves), its weights (or their average, where that validated closer on both sets:
+4. keeps it (:func:`keep`): the save, compacted, replaces ``checkpoints/stream/last/`` whether or not it is better
+   (a metric may dip before it improves), its weights (or their average, where that validated closer on both sets:
    :func:`readout`) replace ``checkpoints/stream/best/`` only when closer than the best's to the actions, relative to
    holding still, on both sets (the point estimates), and its point (the raw weights') joins
    ``docs/scaling_curve.{json,png}`` (the figures with their 95% intervals over tasks, drawn as error bars).
@@ -50,6 +51,9 @@ from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+from lerobot.optim.optimizers import OPTIMIZER_STATE
+from safetensors.torch import save_file
+
 from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionErrorError, paired_ratio_difference
 from lerobot_instant_policy.evaluation.manifest import checkpoint_fingerprint
 from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE, write_averaged_model
@@ -71,6 +75,7 @@ SAVE_TAR = "save.tar"
 POOL_STATE = "training_state/task_pool.json"  # written after the rest of a save: its presence marks a complete one
 MODEL_DIR, STATE_DIR = "pretrained_model", "training_state"
 AVERAGE_MODEL_DIR = "pretrained_model_average"  # a save's moving average as a pretrained_model, when it keeps one
+COMPACT_OMITS = (OPTIMIZER_STATE, AVERAGE_FILE)  # what a kept save leaves out of training_state/ (write_compact)
 
 
 # the validation's replay start (StandingConfig's fields of that name): part of a cached result's key where given
@@ -92,7 +97,8 @@ class StandingConfig:
     CPU cores can feed the pool instead, the GPU left to the update). ``lerobot_args``: more ``lerobot-train`` flags.
     ``replay_init_strength`` / ``replay_per_object`` / ``replay_anchored``: validate every checkpoint started from the
     replay of its demonstrations, so planned (``lerobot-ip-action-error --replay-init-strength``; None: as the
-    checkpoint's config says)."""
+    checkpoint's config says). ``moment_rebuild_steps``: the steps at learning rate 0 with which a resumed
+    optimizer that a compact save left without moments rebuilds them first."""
 
     deadline_s: float = 9000.0
     validate_s: float = 420.0
@@ -128,6 +134,7 @@ class StandingConfig:
     replay_init_strength: float | None = None
     replay_per_object: bool | None = None
     replay_anchored: bool | None = None
+    moment_rebuild_steps: int = 100
 
     def validate(self) -> None:
         if not 0 < self.validate_s < self.deadline_s:
@@ -148,6 +155,8 @@ class StandingConfig:
             raise ValueError(f"average_decay must lie in (0, 1), got {self.average_decay}")
         if self.replay_init_strength is not None and not 0 < self.replay_init_strength <= 1:
             raise ValueError(f"replay_init_strength must lie in (0, 1], got {self.replay_init_strength}")
+        if self.moment_rebuild_steps < 0:
+            raise ValueError(f"moment_rebuild_steps must be non-negative, got {self.moment_rebuild_steps}")
 
 
 # ---------------------------------------------------------------------------------------------------- saves
@@ -192,7 +201,8 @@ def train_command(config: StandingConfig, resume_from: Path | None, train_dir: P
               f"--pool.device={config.generator_device or config.device}"]
     if resume_from is not None:
         start = [f"--config_path={resume_from / MODEL_DIR / 'train_config.json'}", "--resume=true",
-                 f"--batch_size={config.batch_size}"]  # a resumed config keeps the batch it was saved with
+                 f"--batch_size={config.batch_size}",  # a resumed config keeps the batch it was saved with
+                 f"--optimizer.moment_rebuild_steps={config.moment_rebuild_steps}"]
     else:
         start = [f"--policy.path={SHIPPED}", f"--policy.optimizer_lr={config.optimizer_lr}",
                  "--policy.push_to_hub=false", f"--batch_size={config.batch_size}", "--steps=100000000",
@@ -213,10 +223,13 @@ def _stage_resume(save: Path, train_dir: Path, base_lr: float | None = None,
     """``save`` copied as a step checkpoint of ``train_dir`` (where LeRobot resumes it and saves after it), with a
     study arm's ``base_lr`` / ``weight_decay`` (None: unchanged) written where a resume reads them: the scheduler's
     ``base_lrs`` (its lr is ``base_lr`` × the schedule's factor at the step) and the optimizer's param groups (their
-    ``lr`` scaled alike, ``initial_lr``, ``weight_decay``) and the saved train config (so later resumes keep them)."""
+    ``lr`` scaled alike, ``initial_lr``, ``weight_decay``) and the saved train config (so later resumes keep them).
+    A compact save's missing moments are staged as an empty optimizer state, which LeRobot loads as a fresh one."""
     staged = staged_start(train_dir, step_of(save))
     for part in (MODEL_DIR, STATE_DIR):
         shutil.copytree(save / part, staged / part)
+    if not (staged / STATE_DIR / OPTIMIZER_STATE).is_file():
+        save_file({}, str(staged / STATE_DIR / OPTIMIZER_STATE))
     if base_lr is None and weight_decay is None:
         return staged
     scheduler_path = staged / STATE_DIR / "scheduler_state.json"
@@ -276,7 +289,8 @@ def figures(result: dict) -> dict:
     """Translation error, its ratio to holding still and the context gain in translation, from
     ``lerobot-ip-action-error``'s default setting, with the two ratios' 95% intervals over tasks
     (``vs_holding_still_interval``, ``context_gain_interval``: ``[low, high]``, None for one task); for a checkpoint
-    started from the replay also the replay's own ratio to holding still and own / replay with their intervals."""
+    started from the replay also the replay's own ratio to holding still and own / replay with their intervals, and
+    those figures for the tasks whose replay plan is right and wrong apart (``by_replay``)."""
     own, hold = result["settings"][0]["translation_mm"], result["hold"]["translation_mm"]
     shown = {"translation_mm": own, "hold_translation_mm": hold, "vs_holding_still": round(own / hold, 4),
              "context_gain": result["context_gain"]["translation"],
@@ -286,6 +300,8 @@ def figures(result: dict) -> dict:
         shown.update({name: result["intervals"][name]["value"] for name in ("vs_replay", "replay_vs_holding_still")})
         shown.update({f"{name}_interval": result["intervals"][name]["ci95"]
                       for name in ("vs_replay", "replay_vs_holding_still")})
+    if "by_replay" in result:  # the tasks whose replay is right and those whose replay is wrong, apart
+        shown["by_replay"] = result["by_replay"]
     return shown
 
 
@@ -571,18 +587,17 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     entry["best_beats_shipped"] = candidate["best_beats_shipped"] = beats_shipped(candidate if kept else previous_best)
     staging = standing / ".last-new"
     shutil.rmtree(staging, ignore_errors=True)
-    for part in (MODEL_DIR, STATE_DIR):
-        shutil.copytree(save / part, staging / part)
+    write_compact(save, staging)
     (staging / RECORD).write_text(json.dumps(record, indent=2))
     shutil.rmtree(last, ignore_errors=True)
     staging.rename(last)  # the old last save stays whole until the new one is complete
     if kept:
         shutil.rmtree(best, ignore_errors=True)
         best.mkdir(parents=True)
-        if candidate["readout"] == "average":
-            write_averaged_model(save, best / MODEL_DIR)
-        else:
-            shutil.copytree(save / MODEL_DIR, best / MODEL_DIR)
+        averaged = (save / STATE_DIR / AVERAGE_FILE).is_file()
+        # the kept weights are the last save's own file where they are the average: one blob in git, not two
+        shutil.copytree((last if averaged == (candidate["readout"] == "average") else save) / MODEL_DIR,
+                        best / MODEL_DIR)
         (best / RECORD).write_text(json.dumps({"runs": [candidate]}, indent=2))
     point = curve_point(entry["samples_total"], entry["tasks_total"], entry["hidden_dim"], entry["device"],
                         entry["validation"], entry["config"]["val_tasks"], entry["config"]["val_frames_per_task"],
@@ -591,6 +606,19 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     add_curve_point(point, curve_file)
     return {"best": kept, "point": point, "against_best": entry.get("against_best"),
             "best_beats_shipped": entry["best_beats_shipped"]}
+
+
+def write_compact(save: Path, out: Path) -> None:
+    """What resuming ``save`` (a LeRobot step checkpoint) needs, written to ``out`` as it is committed:
+    ``pretrained_model/`` holding the moving average's weights where the save keeps one (the raw weights where it
+    does not), so a resumed run goes on from the average and its new average starts there; ``training_state/``
+    without the optimizer's moments and the average (:data:`COMPACT_OMITS`: 24 of the save's 32 MB), which a resumed
+    optimizer rebuilds (``moment_rebuild_steps``). One weights file a save, not three."""
+    if (save / STATE_DIR / AVERAGE_FILE).is_file():
+        write_averaged_model(save, out / MODEL_DIR)
+    else:
+        shutil.copytree(save / MODEL_DIR, out / MODEL_DIR)
+    shutil.copytree(save / STATE_DIR, out / STATE_DIR, ignore=shutil.ignore_patterns(*COMPACT_OMITS))
 
 
 def pack(save: Path, out: Path) -> None:

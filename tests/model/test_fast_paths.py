@@ -201,3 +201,47 @@ def test_fused_adamw_preset_matches_the_loop_implementation():
     for (name, a), b in zip(fused_policy.named_parameters(), loop_policy.parameters(), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6, msg=name)
     assert all(not torch.equal(p, p0) for p, p0 in zip(fused_policy.get_optim_params(), initial, strict=True))
+
+
+def test_a_fresh_optimizer_rebuilds_its_moments_before_it_moves_the_weights():
+    """With moment_rebuild_steps 3 a fresh optimizer keeps the weights for 3 steps while its moments fill, then its
+    fourth step equals AdamW's fourth on the same gradients where the moments are the same; a state that has taken
+    3 steps already (a full save resumed) moves at once. The rates the scheduler set survive the rebuild steps."""
+    from lerobot_instant_policy.policy.optimizer import InstantPolicyAdamWConfig
+
+    generator = torch.Generator().manual_seed(0)
+    weights = torch.randn(5, 4, generator=generator)
+    gradients = [torch.randn(5, 4, generator=generator) for _ in range(4)]
+    config = InstantPolicyAdamWConfig(lr=1e-2, weight_decay=0.1, moment_rebuild_steps=3)
+    rebuilt = torch.nn.Parameter(weights.clone())
+    optimizer = config.build([rebuilt])
+    plain = torch.nn.Parameter(weights.clone())
+    reference = InstantPolicyAdamWConfig(lr=1e-2, weight_decay=0.1).build([plain])
+    for index, gradient in enumerate(gradients):
+        for parameter, opt in ((rebuilt, optimizer), (plain, reference)):
+            parameter.grad = gradient.clone()
+            if index < 3 and opt is reference:
+                for group in opt.param_groups:
+                    group["lr"] = 0.0
+            opt.step()
+            if opt is reference:
+                for group in opt.param_groups:
+                    group["lr"] = 1e-2
+        if index < 3:
+            assert torch.equal(rebuilt, weights) and optimizer.param_groups[0]["lr"] == 1e-2
+    assert not torch.equal(rebuilt, weights)
+    torch.testing.assert_close(rebuilt, plain)
+    assert optimizer.steps_taken() == 4
+    resumed = torch.nn.Parameter(weights.clone())
+    again = config.build([resumed])
+    again.load_state_dict(optimizer.state_dict())
+    resumed.grad = gradients[0].clone()
+    again.step()
+    assert not torch.equal(resumed, weights)
+
+
+def test_moment_rebuild_steps_must_be_non_negative():
+    from lerobot_instant_policy.policy.optimizer import InstantPolicyAdamWConfig
+
+    with pytest.raises(ValueError, match="moment_rebuild_steps"):
+        InstantPolicyAdamWConfig(moment_rebuild_steps=-1)

@@ -44,7 +44,7 @@ def add_run_options(command: argparse.ArgumentParser, defaults: StandingConfig) 
     for name in ("seed", "batch_size", "samples_per_task", "tasks_per_render", "surface_samples", "capacity",
                  "min_tasks", "generators",
                  "generator_threads", "train_threads", "save_freq", "log_freq", "nice", "val_tasks",
-                 "val_frames_per_task", "val_workers", "prior_samples", "prior_tasks"):
+                 "val_frames_per_task", "val_workers", "prior_samples", "prior_tasks", "moment_rebuild_steps"):
         command.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(defaults, name))
     command.add_argument("--lerobot-arg", dest="lerobot_args", action="append", default=[], metavar="FLAG",
                          help="a further lerobot-train flag, e.g. --lerobot-arg=--policy.optimizer_lr=3e-4")

@@ -132,6 +132,7 @@ def test_a_run_resumes_its_save_and_a_first_run_continues_the_shipped_weights(tm
     assert "--resume=true" in resumed and f"--config_path={tmp_path / '000500' / 'pretrained_model'}/train_config.json" \
         in resumed
     assert "--pool" in resumed and "--pool.generators=2" in resumed and "--stream.samples_per_task=8" in resumed
+    assert "--optimizer.moment_rebuild_steps=100" in resumed  # a compact save's moments, rebuilt first
     fresh = train_command(config, None, tmp_path / "run")
     assert any(arg.startswith("--policy.path=") for arg in fresh) and "--resume=true" not in fresh
     assert "--pool.device=cpu" in fresh and "--policy.device=cpu" in fresh
@@ -401,7 +402,8 @@ def test_compare_validates_each_checkpoint_once_and_pairs_the_rest_against_the_f
 
 def test_the_best_holds_the_moving_average_where_it_validated_closer_than_the_raw_weights(tmp_path):
     """A run that kept a moving average offers whichever of its raw weights and their average validated closer on
-    both sets; the last save keeps the raw weights (the run continues them) and the average in its training state."""
+    both sets; the last save is kept compactly: the average as its weights (the run continues from it), neither
+    moments nor a second average in its training state, and a best that is the average is the same file's bytes."""
     from safetensors.torch import load_file, save_file
 
     from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE
@@ -430,13 +432,17 @@ def test_the_best_holds_the_moving_average_where_it_validated_closer_than_the_ra
     best_entry = read_record(standing / "best")["runs"][-1]
     assert best_entry["readout"] == "average"
     assert best_entry["validation"]["moved"]["vs_holding_still"] == pytest.approx(0.85, abs=0.01)
-    assert torch.equal(weights(standing / "last"), torch.full((2,), 1.0))
-    assert (standing / "last" / "training_state" / AVERAGE_FILE).is_file()
+    assert torch.equal(weights(standing / "last"), torch.full((2,), 3.0))
+    assert not (standing / "last" / "training_state" / AVERAGE_FILE).exists()
+    assert (standing / "last" / "training_state" / "training_step.json").is_file()
+    assert ((standing / "best" / "pretrained_model" / "model.safetensors").read_bytes()
+            == (standing / "last" / "pretrained_model" / "model.safetensors").read_bytes())
     assert json.loads(curve.read_text())["points"][-1]["moved_vs_holding_still"] == pytest.approx(0.9, abs=0.01)  # raw
     # an average worse than its raw weights on one set: the raw weights are the run's offer
     second = keep(save_with_average(200, 5.0, 7.0, 0.8, 0.95, layout=0.55), standing, curve)
     assert second["best"] and read_record(standing / "best")["runs"][-1]["readout"] == "raw"
     assert torch.equal(weights(standing / "best"), torch.full((2,), 5.0))
+    assert torch.equal(weights(standing / "last"), torch.full((2,), 7.0))  # the run goes on from its average
     assert second["against_best"]["moved"]["vs_holding_still"]["b"] == pytest.approx(0.85, abs=0.01)
 
 
@@ -478,3 +484,52 @@ def test_validation_generators_that_print_much_do_not_block(tmp_path, monkeypatc
     with pytest.raises(standing_module.StandingError, match="one_layout validation set failed: x+$"):
         standing_module.wait_for(generating, tmp_path)
     assert (tmp_path / "moved.log").stat().st_size == 400_000
+
+
+def test_a_compact_save_resumes_from_its_average_and_rebuilds_the_moments_before_moving(tmp_path):
+    """A real pool run's save, kept compactly (:func:`write_compact`: the average as the weights, no moments, no
+    second average), resumes under ``lerobot-ip-train --resume=true`` as the standing run stages it: the optimizer
+    starts fresh and takes its rebuild steps at learning rate 0, so the weights after them are the compact save's
+    bit for bit, and the steps after move them."""
+    import os
+    import subprocess
+    import sys
+
+    from safetensors.torch import load_file
+
+    from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE
+
+    bin_dir = Path(sys.executable).parent
+    (tmp_path / "stream.json").write_text(json.dumps({"seed": 5, "object_pool": ["pb/cube", "pb/duck"],
+                                                      "family": "full", "tasks_per_object_group": 1}))
+    common = ["--stream.config=stream.json", "--stream.samples_per_task=2", "--stream.tasks_per_render=1", "--pool",
+              "--pool.min_tasks=1", "--pool.capacity=4", "--save_freq=2", "--log_freq=1"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"}
+
+    def train(*flags: str) -> None:
+        done = subprocess.run([str(bin_dir / "lerobot-ip-train"), *common, *flags], capture_output=True, text=True,
+                              timeout=600, env=env, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr[-3000:]
+
+    run = tmp_path / "run"
+    train("--policy.type=instant_policy", "--policy.device=cpu", "--policy.push_to_hub=false", "--policy.max_demos=2",
+          "--policy.reencode_action_clouds=false", "--num_workers=0", "--batch_size=2", "--average.decay=0.5",
+          "--steps=2", f"--output_dir={run}")
+    compact = tmp_path / "last"
+    standing_module.write_compact(run / "checkpoints" / "000002", compact)
+    assert not any((compact / "training_state" / name).exists() for name in ("optimizer_state.safetensors",
+                                                                             AVERAGE_FILE))
+    average = load_file(run / "checkpoints" / "000002" / "training_state" / AVERAGE_FILE)
+    weights = load_file(compact / "pretrained_model" / "model.safetensors")
+    assert all(torch.equal(weights[name], tensor) for name, tensor in average.items())
+
+    resumed = tmp_path / "resumed"
+    staged = standing_module._stage_resume(compact, resumed)
+    config = StandingConfig(moment_rebuild_steps=2, average_decay=0.5)
+    resume_flags = [flag for flag in train_command(config, staged, resumed) if flag.startswith(
+        ("--config_path", "--resume", "--optimizer.", "--output_dir", "--average"))]
+    train(*resume_flags, "--steps=6")
+    after_rebuild = load_file(resumed / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors")
+    moved = load_file(resumed / "checkpoints" / "000006" / "pretrained_model" / "model.safetensors")
+    assert all(torch.equal(after_rebuild[name], weights[name]) for name in average)
+    assert any(not torch.equal(moved[name], weights[name]) for name in average)
