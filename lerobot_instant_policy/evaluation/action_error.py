@@ -61,6 +61,7 @@ from ..modeling_instant_policy import InstantPolicyPolicy
 from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
+from .replay_error import plan_error, plan_is_wrong
 from .replay_priors import replay_priors
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
@@ -100,6 +101,7 @@ class HeldOutTask:
     frames: list[LiveFrame]
     live_first_points: np.ndarray
     live_state: np.ndarray
+    live: Demonstration | None = None
     _priors: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def replay_priors(self, num_demos: int, horizon: int, plan: str) -> np.ndarray:
@@ -206,7 +208,7 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
             noise_seed = int(np.random.SeedSequence([seed, task_number, t]).generate_state(1)[0])
             phase = min(len(PHASES) - 1, len(PHASES) * t // live.num_frames)
             frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed, phase))
-        held_out.append(HeldOutTask(task, episodes[-1], demos, frames, live.points_world[0], live.state))
+        held_out.append(HeldOutTask(task, episodes[-1], demos, frames, live.points_world[0], live.state, live))
     return held_out
 
 
@@ -502,10 +504,38 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
     config = probe.policy.config
     if config.replay_init_strength:
         result["replay"] = replay_reference(probe.tasks, own["N"], config.horizon, config.replay_plan())
-        for row, replay_mm in zip(result["per_task"], result["replay"]["translation_mm_by_task"], strict=True):
+        for row, replay_mm, held in zip(result["per_task"], result["replay"]["translation_mm_by_task"], probe.tasks,
+                                        strict=True):
             row["replay_mm"] = replay_mm
+            if held.live is not None:
+                row["replay_wrong"] = plan_is_wrong(plan_error(held.demos[:own["N"]], held.live, config.replay_plan()))
         result["intervals"].update(replay_intervals(result["per_task"]))
+        if all("replay_wrong" in row for row in result["per_task"]):
+            result["by_replay"] = replay_split(result["per_task"])
     return result
+
+
+def replay_split(per_task: list[dict]) -> dict:
+    """The tasks whose replay plan is right and those whose plan is wrong (each row's ``replay_wrong``,
+    :func:`.replay_error.plan_is_wrong` at the live demonstration's gripper changes and end), apart: for each, its
+    ``tasks`` and, where it has two or more, the ratios over holding still of the policy (``vs_holding_still``)
+    and of the replay (``replay_vs_holding_still``) and the policy over the replay (``vs_replay``), each
+    ``{"value", "ci95"}`` over that group's tasks. A corrector should keep a right start (``vs_replay`` near 1 or
+    below) and mend a wrong one (``vs_replay`` well below 1)."""
+    split = {}
+    for name, wrong in (("right", False), ("wrong", True)):
+        rows = [row for row in per_task if row["replay_wrong"] == wrong]
+        split[name] = {"tasks": len(rows)}
+        if len(rows) < 2:
+            continue
+        sums = _task_sums(rows, ("own", "hold"))
+        low, high = cluster_bootstrap(lambda draws: sums["own"][draws].sum(axis=-1) / sums["hold"][draws].sum(axis=-1),
+                                      len(rows), BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
+        every = np.arange(len(rows))
+        split[name]["vs_holding_still"] = {
+            "value": round(float(sums["own"][every].sum() / sums["hold"][every].sum()), 4), "ci95": _interval(low, high)}
+        split[name].update(replay_intervals(rows))
+    return split
 
 
 def replay_intervals(per_task: list[dict], resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> dict:

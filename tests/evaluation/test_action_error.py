@@ -323,6 +323,23 @@ def test_a_policy_that_starts_from_the_replay_is_judged_beside_the_replay(held_o
                                                                       abs=1e-3)
     low, high = result["intervals"]["vs_replay"]["ci95"]
     assert low <= high
+    assert all(isinstance(row["replay_wrong"], bool) for row in result["per_task"])  # each task's plan judged
+    assert result["by_replay"]["right"]["tasks"] + result["by_replay"]["wrong"]["tasks"] == 2
     assert "replay" not in _run(held_out_root)  # the faithful path: no replay reference
     with pytest.raises(ae.ActionErrorError, match=r"replay_init_strength must lie in \(0, 1\]"):
         _run(held_out_root, replay_init_strength=1.5)
+
+
+def test_tasks_whose_replay_is_right_and_wrong_are_reported_apart():
+    """The split of a per-task table by its plans' wrongness: each group's ratios over its own tasks only (a
+    corrector that keeps right starts, 1.0x the replay there, and halves wrong ones), one task too few for ratios."""
+    rows = [{"task": f"t{i}", "frames": 2, "own_mm": own, "hold_mm": 20.0, "replay_mm": replay, "replay_wrong": wrong}
+            for i, (own, replay, wrong) in enumerate([(5.0, 5.0, False), (6.0, 6.0, False), (4.0, 4.0, False),
+                                                      (30.0, 60.0, True), (40.0, 80.0, True)])]
+    split = ae.replay_split(rows)
+    assert split["right"]["tasks"] == 3 and split["wrong"]["tasks"] == 2
+    assert split["right"]["vs_replay"]["value"] == pytest.approx(1.0)
+    assert split["right"]["vs_holding_still"]["value"] == pytest.approx(15.0 / 60.0)
+    assert split["wrong"]["vs_replay"]["value"] == pytest.approx(0.5)
+    assert split["wrong"]["replay_vs_holding_still"]["value"] == pytest.approx(140.0 / 40.0)
+    assert ae.replay_split(rows[:4])["wrong"] == {"tasks": 1}

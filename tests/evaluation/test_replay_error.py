@@ -1,6 +1,6 @@
 """The replay error against the demonstration of the same live scene (``evaluation/replay_error.py``): zero where
 the plan is right, the displacement where one motion cannot follow two objects, a gripper change the plan lacks
-counted as missed."""
+counted as missed, and a plan off at a gripper change (or missing one) counted as wrong."""
 
 from __future__ import annotations
 
@@ -35,6 +35,8 @@ def test_the_anchored_plan_errs_little_at_every_bottleneck_where_the_whole_one_m
     assert summary["gripper"]["count"] == 2 and summary["all"]["count"] == len(anchored["bottlenecks"])
     assert summary["gripper"]["translation_mm"]["p90"] < 6.0
     assert summary["missed_gripper_changes"] == 0
+    assert error_quantiles([anchored, whole])["plans"] == 2
+    assert error_quantiles([anchored, whole])["wrong_plans"] == 1  # the whole plan, off at the release
 
 
 def test_a_gripper_turned_half_a_turn_about_its_approach_axis_errs_no_rotation(context_and_live):
@@ -58,3 +60,4 @@ def test_a_gripper_change_the_plan_lacks_is_missed(context_and_live):
     assert error["missed"] == 2  # the close and the open
     assert all(row["kind"] != "gripper" for row in error["bottlenecks"])
     assert error_quantiles([error])["gripper"] == {"count": 0}
+    assert error_quantiles([error])["wrong_plans"] == 1  # a plan that never grasps is wrong wherever it goes

@@ -8,6 +8,14 @@ demonstration sets an evaluation recorded, printed as JSON.
 ``lerobot-ip-eval-metaworld`` record them (``<task>-n<N>-s<seed>``). Each episode of set ``s`` is the live scene in
 turn, and the episodes of the next set of the same task (``s + 1``, the last set's the first's) are its context, as
 an evaluation hands a set to the policy: the context never holds the live scene's own demonstration.
+
+    python -m workbench.cli.replay_error outputs/standing/validation/moved --pseudo-tasks 96
+
+With ``--pseudo-tasks N``, ``DEMOS`` is one pseudo-demonstration dataset (``lerobot-ip-generate``'s; a task's
+episodes share its ``task`` string) and its first ``N`` tasks are measured as training plans its replay prior: the
+last episode is the live demonstration, the first ``--context`` episodes (1, as the stream plans the prior) the
+context. Printed beside a suite's figures, the two say whether the priors a corrector trains on err as the replays
+it meets do.
 """
 
 from __future__ import annotations
@@ -60,11 +68,36 @@ def replay_errors(sets: dict[str, list], plans: list[str]) -> dict:
             for plan, by_task in errors.items()}
 
 
+def pseudo_task_errors(root: Path, num_tasks: int, context_demos: int, plans: list[str]) -> dict:
+    """Per plan: the pooled :func:`error_quantiles` over the first ``num_tasks`` pseudo-tasks of the dataset at
+    ``root`` (module docstring); ``ValueError`` where it holds fewer with ``context_demos`` + 1 episodes."""
+    dataset = open_demo_dataset("local/pseudo_tasks", root)
+    by_task: dict[str, list[int]] = defaultdict(list)
+    for episode in dataset.meta.episodes:
+        by_task[str(episode["tasks"][0])].append(int(episode["episode_index"]))
+    usable = sorted((episodes for episodes in by_task.values() if len(episodes) > context_demos), key=min)
+    if len(usable) < num_tasks:
+        raise ValueError(f"{root} holds {len(usable)} pseudo-tasks with {context_demos + 1} episodes or more, "
+                         f"asked for {num_tasks}")
+    errors = {plan: [] for plan in plans}
+    for episodes in usable[:num_tasks]:
+        episodes = sorted(episodes)
+        task = str(dataset.meta.episodes[episodes[0]]["tasks"][0])
+        demos = [read_demonstration(dataset, index, task) for index in episodes[:context_demos] + episodes[-1:]]
+        for plan in plans:
+            errors[plan].append(plan_error(demos[:-1], demos[-1], plan))
+    return {plan: {"all": error_quantiles(plan_errors)} for plan, plan_errors in errors.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("demos", type=Path, help="a folder of demonstration sets (<task>-n<N>-s<seed>)")
     parser.add_argument("--plans", default=",".join(REPLAY_PLANS),
                         help=f"comma-separated replay plans (default: {','.join(REPLAY_PLANS)})")
+    parser.add_argument("--pseudo-tasks", type=int, metavar="N",
+                        help="DEMOS is a pseudo-demonstration dataset: measure its first N tasks' replay priors")
+    parser.add_argument("--context", type=int, default=1,
+                        help="with --pseudo-tasks, the context episodes a prior is planned from (default 1)")
     args = parser.parse_args(argv)
     plans = args.plans.split(",")
     unknown = [plan for plan in plans if plan not in REPLAY_PLANS]
@@ -72,6 +105,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: " + (f"unknown plans {unknown}: expected {list(REPLAY_PLANS)}" if unknown
                                     else f"{args.demos} is not a folder"), file=sys.stderr)
         return 2
+    if args.pseudo_tasks is not None:
+        try:
+            if args.pseudo_tasks < 1 or args.context < 1:
+                raise ValueError(f"--pseudo-tasks and --context must be at least 1, got {args.pseudo_tasks}, "
+                                 f"{args.context}")
+            plans_errors = pseudo_task_errors(args.demos, args.pseudo_tasks, args.context, plans)
+        except (ValueError, FileNotFoundError) as error:
+            print(f"{PROG}: error: {error}", file=sys.stderr)
+            return 2
+        print(json.dumps({"demos": str(args.demos), "pseudo_tasks": args.pseudo_tasks, "context": args.context,
+                          "plans": plans_errors}, indent=2))
+        return 0
     sets = demonstration_sets(args.demos)
     if not any(len(task_sets) >= 2 for task_sets in sets.values()):
         print(f"{PROG}: error: {args.demos} holds no task with two demonstration sets", file=sys.stderr)

@@ -40,3 +40,21 @@ def test_unknown_plans_and_folders_without_two_sets_are_refused(tmp_path, capsys
     assert "unknown plans ['segments']" in capsys.readouterr().err
     assert main([str(tmp_path)]) == 2
     assert "no task with two demonstration sets" in capsys.readouterr().err
+
+
+def test_pseudo_tasks_are_measured_from_their_first_episode_onto_their_last(tmp_path, capsys):
+    """``--pseudo-tasks``: one dataset whose episodes are grouped by task string; each task's last episode is the
+    live scene, its first the context, as the stream plans a training prior. Asking for more tasks is refused."""
+    dataset = create_dataset("local/pseudo", tmp_path / "pseudo")
+    for task in ("pseudo-s1-000000", "pseudo-s1-000001"):
+        for index, scene in enumerate(SCENES if task.endswith("0") else SCENES[::-1]):
+            demo = carry_demo(*scene, seed=index)
+            write_episode(dataset, demo.points_world, demo.state, demo.action, task)
+    dataset.finalize()
+    assert main([str(tmp_path / "pseudo"), "--pseudo-tasks", "2", "--plans", "whole,anchored"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    anchored, whole = result["plans"]["anchored"]["all"], result["plans"]["whole"]["all"]
+    assert anchored["gripper"]["count"] == 4 and anchored["missed_gripper_changes"] == 0
+    assert anchored["gripper"]["translation_mm"]["p90"] < 6.0 < 30.0 < whole["gripper"]["translation_mm"]["p90"]
+    assert main([str(tmp_path / "pseudo"), "--pseudo-tasks", "3"]) == 2
+    assert "holds 2 pseudo-tasks" in capsys.readouterr().err
