@@ -48,6 +48,9 @@ ENCODED_KEYS = (SCENE_POSITIONS_KEY, SCENE_FEATURES_KEY, CONTEXT_SCENE_POSITIONS
 # Training to refine (``InstantPolicyConfig.refine_fraction``): per row the replay prior of its ``T`` actions, what the
 # context's replay plan commands there, ``(B, T, 8)`` absolute world-frame EE targets in the 8-vector layout.
 REPLAY_PRIOR_KEY = "observation.replay_prior"
+# and per row whether training may start from it ``(B,)`` bool: False for a wrong prior the stream leaves out
+# (``StreamConfig.wrong_prior_keep``), whose row then keeps the paper's loss.
+REPLAY_PRIOR_KEPT_KEY = "observation.replay_prior_kept"
 
 NUM_POINTS = 2048
 POINTCLOUD_NAMES = ["point", "xyz"]

@@ -44,6 +44,7 @@ from .contract import (
     CONTEXT_T_WORLD_EE_KEY,
     ENCODED_KEYS,
     POINTCLOUD_KEY,
+    REPLAY_PRIOR_KEPT_KEY,
     REPLAY_PRIOR_KEY,
     SCENE_FEATURES_KEY,
     SCENE_POSITIONS_KEY,
@@ -215,7 +216,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
 
     def _refinement(self, batch: dict[str, Tensor], T_world_ee: Tensor) -> tuple[Tensor | None, Tensor | None]:
         """With ``config.refine_fraction`` > 0: the replay prior of the batch as a diffusion variable in each row's
-        EE frame ``(B, T, 7)`` and the rows that start from it ``(B,)`` (each with probability ``refine_fraction``);
+        EE frame ``(B, T, 7)`` and the rows that start from it ``(B,)`` (each with probability ``refine_fraction``,
+        among the rows whose prior the stream kept: ``observation.replay_prior_kept`` where the batch has it);
         else ``(None, None)``. ``KeyError`` saying how to get priors when the batch has none."""
         if not self.config.refine_fraction:
             return None, None
@@ -227,6 +229,8 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             )
         prior = self._in_ee_frame(REPLAY_PRIOR_KEY, batch[REPLAY_PRIOR_KEY], T_world_ee)
         refined_rows = torch.rand(len(T_world_ee), device=T_world_ee.device) < self.config.refine_fraction
+        if REPLAY_PRIOR_KEPT_KEY in batch:
+            refined_rows &= batch[REPLAY_PRIOR_KEPT_KEY].to(device=refined_rows.device, dtype=torch.bool)
         return prior, refined_rows
 
     def _in_ee_frame(self, name: str, planned: Tensor, T_world_ee: Tensor) -> Tensor:

@@ -40,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stream.surface_samples", dest="surface_samples", type=int,
                         help="surface samples per object that splatting draws the clouds from (default 8192)")
     parser.add_argument("--stream.seed", dest="seed", type=int, help="the stream's seed (default: the config's)")
+    parser.add_argument("--stream.wrong_prior_keep", dest="wrong_prior_keep", type=float,
+                        help="training to refine: the probability that a task whose replay prior is wrong keeps it "
+                             "(default 1; the others train from noise)")
     parser.add_argument("--pool", action="store_true",
                         help="draw from a rolling pool of encoded fresh tasks (policy.task_pool) instead of rendering "
                              "in the update; --stream.samples_per_task is then the live frames encoded per task")
@@ -68,7 +71,8 @@ def pool_config_from_args(args: argparse.Namespace, stream_config: StreamConfig)
 
 
 def stream_config_from_args(args: argparse.Namespace) -> StreamConfig:
-    overrides = {name: getattr(args, name) for name in ("samples_per_task", "tasks_per_render", "surface_samples")
+    overrides = {name: getattr(args, name)
+                 for name in ("samples_per_task", "tasks_per_render", "surface_samples", "wrong_prior_keep")
                  if getattr(args, name) is not None}
     config = StreamConfig.from_generate_config(args.config, **overrides)
     if args.seed is None:

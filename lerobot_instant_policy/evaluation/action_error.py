@@ -61,7 +61,7 @@ from ..modeling_instant_policy import InstantPolicyPolicy
 from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
-from .replay_error import plan_error, plan_is_wrong
+from .replay_error import plan_error
 from .replay_priors import replay_priors
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
@@ -508,7 +508,7 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
                                         strict=True):
             row["replay_mm"] = replay_mm
             if held.live is not None:
-                row["replay_wrong"] = plan_is_wrong(plan_error(held.demos[:own["N"]], held.live, config.replay_plan()))
+                row["replay_wrong"] = plan_error(held.demos[:own["N"]], held.live, config.replay_plan())["wrong"]
         result["intervals"].update(replay_intervals(result["per_task"]))
         if all("replay_wrong" in row for row in result["per_task"]):
             result["by_replay"] = replay_split(result["per_task"])
@@ -517,7 +517,7 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
 
 def replay_split(per_task: list[dict]) -> dict:
     """The tasks whose replay plan is right and those whose plan is wrong (each row's ``replay_wrong``,
-    :func:`.replay_error.plan_is_wrong` at the live demonstration's gripper changes and end), apart: for each, its
+    :func:`~..data.replay_segments.plan_is_wrong` against the live demonstration), apart: for each, its
     ``tasks`` and, where it has two or more, the ratios over holding still of the policy (``vs_holding_still``)
     and of the replay (``replay_vs_holding_still``) and the policy over the replay (``vs_replay``), each
     ``{"value", "ci95"}`` over that group's tasks. A corrector should keep a right start (``vs_replay`` near 1 or

@@ -16,11 +16,8 @@ its segments (:func:`~..data.replay_segments.segment_ends`), where a wrong plan 
 Each bottleneck gives the translation (m) and rotation (rad) between the planned and the demonstrated commanded EE
 pose; the rotation is the smaller of the two a parallel gripper cannot tell apart (turned half a turn about its
 approach axis, EE z, it grasps alike). :func:`error_quantiles` pools them into the median and 90th percentile per kind,
-and counts the plans that are wrong: a gripper change or the last action further than :data:`WRONG_PLAN_M` from the
-demonstrated one, or a gripper change missed. The stops and turns between them do not count, since two demonstrators
-pass them differently in the same scene. On held-out pseudo-tasks whose objects moved between demonstrations, each
-plan's worst error at a gripper change lies either within a few millimetres or beyond 60 mm (a segment on the wrong
-object, a turned registration), so the share hardly depends on where in between the line is drawn.
+and counts the wrong plans (:func:`~..data.replay_segments.plan_is_wrong`: off by 30 mm or more at a gripper change
+or the end, or missing a gripper change), the criterion the stream also judges its training priors by.
 """
 
 from __future__ import annotations
@@ -32,26 +29,26 @@ import numpy as np
 from ..contract import poses_from_vectors
 from ..data.demonstrations import Demonstration
 from ..data.replay_plan import REPLAY_REGISTRATION, plan_replay
-from ..data.replay_segments import gripper_changes, segment_ends
+from ..data.replay_segments import gripper_change_kinds, plan_is_wrong, segment_ends
 from ..geometry.se3 import pose_distance, rotation_angle
 from .replay_priors import plan_steps
 
 BOTTLENECK_KINDS = ("gripper", "waypoint", "end")
-WRONG_PLAN_M = 0.03  # a plan this far off at a gripper change or its end counts as wrong (module docstring)
 HALF_TURN_ABOUT_Z = np.diag([-1.0, -1.0, 1.0])  # the parallel gripper's symmetry, in the EE frame
 
 
 def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str) -> dict:
     """The error of the ``plan`` replay of ``context`` in ``live``'s scene at ``live``'s bottleneck poses (module
     docstring): ``{"bottlenecks": [{"frame", "kind", "translation_m", "rotation_rad"}, ...], "missed": int,
-    "demo_index": int}`` (``demo_index``: the context demonstration the plan replays)."""
+    "wrong": bool, "demo_index": int}`` (``wrong``: :func:`~..data.replay_segments.plan_is_wrong`; ``demo_index``:
+    the context demonstration the plan replays)."""
     replay = plan_replay(live.task, list(context), live.points_world[0], REPLAY_REGISTRATION, plan)
     planned = replay.actions.astype(np.float64)
     live_action = live.action.astype(np.float64)
     ends = segment_ends(live_action)
     aligned = plan_steps(live_action, planned)
-    live_changes = _gripper_changes(live_action)
-    plan_changes = _gripper_changes(planned)
+    live_changes = gripper_change_kinds(live_action)
+    plan_changes = gripper_change_kinds(planned)
     rows, missed = [], 0
     for end in ends.tolist():
         if end in live_changes:
@@ -68,13 +65,14 @@ def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str)
         translation, rotation = pose_distance(T_planned, T_live)
         rotation = min(rotation, rotation_angle(T_planned[:3, :3] @ HALF_TURN_ABOUT_Z, T_live[:3, :3]))
         rows.append({"frame": end, "kind": kind, "translation_m": float(translation), "rotation_rad": float(rotation)})
-    return {"bottlenecks": rows, "missed": missed, "demo_index": replay.demo_index}
+    return {"bottlenecks": rows, "missed": missed, "wrong": plan_is_wrong(planned, live_action),
+            "demo_index": replay.demo_index}
 
 
 def error_quantiles(errors: Sequence[dict]) -> dict:
     """Median and 90th percentile of the translation (mm) and rotation (degrees) of the bottlenecks of
     :func:`plan_error` results, pooled and per kind, with the bottleneck counts, the missed gripper changes, the
-    plans and the wrong ones among them (:func:`plan_is_wrong`)."""
+    plans and the wrong ones among them (``wrong``)."""
     rows = [row for error in errors for row in error["bottlenecks"]]
 
     def summary(selected: list[dict]) -> dict:
@@ -92,25 +90,8 @@ def error_quantiles(errors: Sequence[dict]) -> dict:
     result.update({kind: summary([row for row in rows if row["kind"] == kind]) for kind in BOTTLENECK_KINDS})
     result["missed_gripper_changes"] = int(sum(error["missed"] for error in errors))
     result["plans"] = len(errors)
-    result["wrong_plans"] = sum(plan_is_wrong(error) for error in errors)
+    result["wrong_plans"] = sum(error["wrong"] for error in errors)
     return result
 
 
-def plan_is_wrong(error: dict) -> bool:
-    """Whether a :func:`plan_error` result is a wrong plan (module docstring, :data:`WRONG_PLAN_M`)."""
-    return error["missed"] > 0 or any(row["translation_m"] > WRONG_PLAN_M for row in error["bottlenecks"]
-                                      if row["kind"] != "waypoint")
-
-
-def _gripper_changes(actions: np.ndarray) -> dict[int, tuple[str, int]]:
-    """``{action index: (kind, order)}`` of the gripper changes of ``actions (F, 8)``: kind ``"close"`` or
-    ``"open"``, order counting the changes of that kind before it."""
-    changes, counts = {}, {"close": 0, "open": 0}
-    for index in gripper_changes(actions).tolist():
-        kind = "open" if actions[index, 7] > 0.5 else "close"
-        changes[index] = (kind, counts[kind])
-        counts[kind] += 1
-    return changes
-
-
-__all__ = ["BOTTLENECK_KINDS", "WRONG_PLAN_M", "error_quantiles", "plan_error", "plan_is_wrong"]
+__all__ = ["BOTTLENECK_KINDS", "error_quantiles", "plan_error"]

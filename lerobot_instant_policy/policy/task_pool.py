@@ -24,7 +24,7 @@ A sample (numpy-backed tensors on the CPU, float32 unless noted), the batch layo
 ``observation.context.T_world_ee (N, L, 4, 4)``, ``observation.context.gripper_open (N, L)``,
 ``observation.context.scene_positions (N, L, M, 3)``, ``observation.context.scene_features (N, L, M, D)`` and
 ``observation.context.id`` (int64, the task index), and with the stream's replay priors ``observation.replay_prior
-(T, 8)``. The policy's training forward reads it with the same graph and
+(T, 8)`` and ``observation.replay_prior_kept``. The policy's training forward reads it with the same graph and
 loss as a batch of clouds: only the frozen encoder's work has moved.
 
 The generators' encoder is the policy's: the frozen encoder of the checkpoint being continued, else the encoder
@@ -56,6 +56,7 @@ from ..contract import (
     CONTEXT_SCENE_FEATURES_KEY,
     CONTEXT_SCENE_POSITIONS_KEY,
     CONTEXT_T_WORLD_EE_KEY,
+    REPLAY_PRIOR_KEPT_KEY,
     REPLAY_PRIOR_KEY,
     SCENE_FEATURES_KEY,
     SCENE_POSITIONS_KEY,
@@ -112,7 +113,8 @@ class EncodedTask:
     """One task as the pool keeps it (numpy, float32): the context's ``T_world_ee (N, L, 4, 4)``, ``gripper_open
     (N, L)``, ``scene_positions (N, L, M, 3)`` and ``scene_features (N, L, M, D)``; the ``S`` live frames' ``state
     (S, 8)``, ``actions (S, T, 8)``, ``live_positions (S, M, 3)``, ``live_features (S, M, D)`` and, when the stream
-    plans them (``StreamConfig.replay_priors``), their replay priors ``replay_prior (S, T, 8)``."""
+    plans them (``StreamConfig.replay_priors``), their replay priors ``replay_prior (S, T, 8)`` and whether training
+    may start from them (``replay_prior_kept``)."""
 
     task_index: int
     T_world_ee: np.ndarray
@@ -124,6 +126,7 @@ class EncodedTask:
     live_positions: np.ndarray
     live_features: np.ndarray
     replay_prior: np.ndarray | None = None
+    replay_prior_kept: bool = True
 
     @property
     def num_live(self) -> int:
@@ -131,7 +134,8 @@ class EncodedTask:
 
     def sample(self, frame: int) -> dict[str, torch.Tensor]:
         """The training sample of live frame ``frame`` (module docstring)."""
-        prior = {} if self.replay_prior is None else {REPLAY_PRIOR_KEY: torch.from_numpy(self.replay_prior[frame])}
+        prior = {} if self.replay_prior is None else {REPLAY_PRIOR_KEY: torch.from_numpy(self.replay_prior[frame]),
+                                                      REPLAY_PRIOR_KEPT_KEY: torch.tensor(self.replay_prior_kept)}
         return {
             STATE_KEY: torch.from_numpy(self.state[frame]),
             ACTION_KEY: torch.from_numpy(self.actions[frame]),
@@ -169,6 +173,7 @@ def encode_task(task: RenderedTask, encoder: GeometryEncoder, horizon: int) -> E
         live_positions=positions[num_context:],
         live_features=features[num_context:],
         replay_prior=task.replay_prior,
+        replay_prior_kept=task.replay_prior_kept,
     )
 
 

@@ -16,13 +16,21 @@ demonstrations pass the task's waypoints in the same order (``DemoPlan.waypoint_
 to the planned demonstration's frame by linear interpolation between the frames where the two reach the same
 waypoint (first and last frames included): the prior of live frame ``t`` and action ``j`` is the planned action at
 the mapped frame of ``t + j``.
+
+The plan is also judged against the live demonstration, the scene's ground truth
+(:func:`~..data.replay_segments.plan_is_wrong`: off at a gripper change or the end, or missing a gripper change), as
+the replays a policy meets are judged against their scenes' demonstrations, so the stream can keep wrong priors in
+the share those replays are wrong (``StreamConfig.wrong_prior_keep``).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..data.replay_plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
+from ..data.replay_segments import plan_is_wrong
 from .generation import PlannedTask
 from .replay import DemoPlan
 
@@ -43,6 +51,13 @@ def aligned_frames(live: DemoPlan, planned: DemoPlan, frames: np.ndarray) -> np.
     return np.clip(np.rint(mapped), 0, planned_last).astype(np.int64)
 
 
+class ReplayPrior(NamedTuple):
+    """A live demonstration's replay prior: ``actions (S, T, 8)`` and whether its plan is ``wrong``."""
+
+    actions: np.ndarray
+    wrong: bool
+
+
 def replay_prior_actions(
     planned: PlannedTask,
     context_first_cloud: np.ndarray,
@@ -50,9 +65,10 @@ def replay_prior_actions(
     live_frames: np.ndarray,
     horizon: int,
     plan: str,
-) -> np.ndarray:
+) -> ReplayPrior:
     """The replay prior of live frames ``live_frames (S,)``: ``(S, T, 8)`` absolute world-frame EE targets and gripper
-    commands (the contract's layout), ``T = horizon``.
+    commands (the contract's layout), ``T = horizon``, and whether the whole plan is wrong against the live
+    demonstration's actions (module docstring).
 
     ``planned.demos`` holds the context demonstrations then the live one; ``context_first_cloud (P, 3)`` is the first
     context demonstration's first cloud and ``live_first_cloud (P, 3)`` the live one's, world frame, as rendered for
@@ -62,7 +78,8 @@ def replay_prior_actions(
     source = ReplaySource(np.asarray(context_first_cloud), first.action)
     replay = plan_replay(f"pseudo-task {planned.task_index}", [source], live_first_cloud, REPLAY_REGISTRATION, plan)
     steps = np.asarray(live_frames)[:, None] + np.arange(horizon)
-    return replay.actions[aligned_frames(live, first, steps)].astype(np.float32)
+    actions = replay.actions[aligned_frames(live, first, steps)].astype(np.float32)
+    return ReplayPrior(actions, plan_is_wrong(replay.actions, live.action))
 
 
-__all__ = ["aligned_frames", "replay_prior_actions"]
+__all__ = ["ReplayPrior", "aligned_frames", "replay_prior_actions"]

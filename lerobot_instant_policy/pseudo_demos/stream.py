@@ -33,7 +33,9 @@ A sample (a dict of tensors on ``device``, float32 unless noted), for a live fra
   ``observation.context.gripper_open (N, L)``: the context demonstrations' waypoints, world frame;
 - ``observation.context.id`` (int64 scalar): the task index; rows with one id share their context;
 - with ``StreamConfig.replay_priors``, ``observation.replay_prior (T, 8)``: the replay prior of actions
-  ``t … t + T − 1`` (:mod:`.replay_priors`), world frame.
+  ``t … t + T − 1`` (:mod:`.replay_priors`), world frame, and ``observation.replay_prior_kept`` (bool): False for a
+  task whose plan is wrong against its live demonstration and is not among the wrong ones kept
+  (``StreamConfig.wrong_prior_keep``, drawn per task from the stream ``(seed, i, 6)``).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ from ..contract import (
     CONTEXT_T_WORLD_EE_KEY,
     NUM_POINTS,
     POINTCLOUD_KEY,
+    REPLAY_PRIOR_KEPT_KEY,
     REPLAY_PRIOR_KEY,
     STATE_KEY,
 )
@@ -68,6 +71,7 @@ from .replay_priors import replay_prior_actions
 
 _LIVE_STREAM = 4  # the live frames of task i are drawn from the random stream (seed, i, 4)
 _RESAMPLE_STREAM = 5  # and its clouds resampled ("fpsample") from (seed, i, 5)
+_PRIOR_STREAM = 6  # and whether its wrong replay prior is kept from (seed, i, 6)
 RESAMPLINGS = ("auto", "fpsample", "masked_fps")
 
 
@@ -86,7 +90,9 @@ class StreamConfig:
     and ``depth_tolerance`` (m), as :class:`~..objects.splatting.SplatConfig`; ``resampling`` one of
     ``RESAMPLINGS`` (see the module docstring). ``replay_priors``: each sample also carries the live frame's replay
     prior (:mod:`.replay_priors`, the live demonstration's first cloud rendered for it, one cloud more per task),
-    planned as ``replay_plan`` names (one of :data:`~..data.replay_plan.REPLAY_PLANS`).
+    planned as ``replay_plan`` names (one of :data:`~..data.replay_plan.REPLAY_PLANS`); ``wrong_prior_keep``: the
+    probability that a task whose plan is wrong keeps its prior for training (1: all kept; below 1 brings the share
+    of wrong priors down towards the share of wrong replays a policy meets, module docstring).
     """
 
     generation: GenerationConfig = field(default_factory=GenerationConfig)
@@ -103,6 +109,7 @@ class StreamConfig:
     resampling: str = "auto"
     replay_priors: bool = False
     replay_plan: str = "per_object"
+    wrong_prior_keep: float = 1.0
 
     def __post_init__(self) -> None:
         self.validate()
@@ -121,6 +128,8 @@ class StreamConfig:
                 raise ValueError(f"StreamConfig.{name} must be a positive integer, got {value!r}")
         if not isinstance(self.num_waypoints, int) or isinstance(self.num_waypoints, bool) or self.num_waypoints < 2:
             raise ValueError(f"StreamConfig.num_waypoints must be an integer ≥ 2, got {self.num_waypoints!r}")
+        if not 0.0 <= self.wrong_prior_keep <= 1.0:
+            raise ValueError(f"StreamConfig.wrong_prior_keep must lie in [0, 1], got {self.wrong_prior_keep!r}")
         if self.replay_plan not in REPLAY_PLANS:
             raise ValueError(f"StreamConfig.replay_plan must be one of {list(REPLAY_PLANS)}, got {self.replay_plan!r}")
         if self.resampling not in RESAMPLINGS:
@@ -177,11 +186,13 @@ def check_place(rank: int, world_size: int, start_task: int) -> None:
 class RenderedTask:
     """One planned task's rendered frames: ``clouds (N·L + S, P, 3)`` world frame, on the stream's device, its ``N · L``
     context waypoints (demonstration-major) then its ``S`` live frames; with ``StreamConfig.replay_priors`` the live
-    frames' replay priors ``replay_prior (S, T, 8)`` (:mod:`.replay_priors`), else None."""
+    frames' replay priors ``replay_prior (S, T, 8)`` (:mod:`.replay_priors`), else None, and whether training may
+    start from them (``replay_prior_kept``, module docstring)."""
 
     frames: _TaskFrames
     clouds: torch.Tensor
     replay_prior: np.ndarray | None = None
+    replay_prior_kept: bool = True
 
     @property
     def task_index(self) -> int:
@@ -296,11 +307,15 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
     def _with_replay_prior(self, frames: _TaskFrames, clouds: torch.Tensor) -> RenderedTask:
         """The rendered task of ``clouds`` (its frames, then the live demonstration's first cloud) with its replay
         prior, planned from the first context demonstration's first waypoint cloud (every demonstration's frame 0 is
-        its first waypoint) onto that first cloud."""
+        its first waypoint) onto that first cloud; a wrong one kept with probability ``wrong_prior_keep``."""
         task = RenderedTask(frames, clouds[:-1])
         context_first = task.context_clouds[0, 0].cpu().numpy()
-        task.replay_prior = replay_prior_actions(frames.planned, context_first, clouds[-1].cpu().numpy(), frames.live,
-                                                 self.config.horizon, self.config.replay_plan)
+        prior = replay_prior_actions(frames.planned, context_first, clouds[-1].cpu().numpy(), frames.live,
+                                     self.config.horizon, self.config.replay_plan)
+        task.replay_prior = prior.actions
+        if prior.wrong:
+            draw = np.random.default_rng([self.config.generation.seed, task.task_index, _PRIOR_STREAM]).random()
+            task.replay_prior_kept = bool(draw < self.config.wrong_prior_keep)
         return task
 
     def _plan(self, task_index: int) -> _TaskFrames | None:
@@ -372,6 +387,7 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
         if task.replay_prior is not None:
             for sample, prior in zip(samples, task.replay_prior, strict=True):
                 sample[REPLAY_PRIOR_KEY] = torch.as_tensor(prior, device=device)
+                sample[REPLAY_PRIOR_KEPT_KEY] = torch.tensor(task.replay_prior_kept, device=device)
         return samples
 
 

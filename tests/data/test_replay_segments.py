@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_instant_policy.data.replay_segments import SegmentConfig, anchor_segments, segment_ends
+from lerobot_instant_policy.data.replay_segments import SegmentConfig, anchor_segments, plan_is_wrong, segment_ends
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw: a half turn about x, pointing the gripper down
 
@@ -84,3 +84,25 @@ def test_nothing_approached_gives_no_segments():
     actions = actions_through([(0.40, 0.0, 0.40, 1), (0.60, 0.0, 0.40, 1)])
     assert anchor_segments(actions, objects) is None
     assert anchor_segments(actions, []) is None
+
+
+def test_a_plan_is_wrong_where_a_gripper_change_or_the_end_is_off_or_a_change_is_missing():
+    """Judged against the demonstration of the same scene: the same actions are right, a path that swerves between
+    the bottlenecks too (demonstrators differ there), a grasp 5 cm off, an end 5 cm off or a grasp never made are
+    wrong."""
+    demonstrated = actions_through([(0.4, 0.0, 0.2, 1.0), (0.5, 0.1, 0.05, 0.0), (0.5, -0.1, 0.2, 0.0),
+                                    (0.45, -0.1, 0.05, 1.0)])
+    assert not plan_is_wrong(demonstrated, demonstrated)
+    swerving = demonstrated.copy()
+    swerving[7:9, 2] += 0.08  # mid-carry, no gripper change there
+    assert not plan_is_wrong(swerving, demonstrated)
+    grasp = int(np.flatnonzero(demonstrated[1:, 7] != demonstrated[:-1, 7])[0]) + 1
+    off_at_grasp = demonstrated.copy()
+    off_at_grasp[grasp, 0] += 0.05
+    assert plan_is_wrong(off_at_grasp, demonstrated)
+    off_at_end = demonstrated.copy()
+    off_at_end[-1, 1] += 0.05
+    assert plan_is_wrong(off_at_end, demonstrated)
+    never_grasps = demonstrated.copy()
+    never_grasps[:, 7] = 1.0
+    assert plan_is_wrong(never_grasps, demonstrated)

@@ -1,6 +1,6 @@
 """Training to refine (``InstantPolicyConfig.refine_fraction``): refined rows start from the noised replay prior, the
-network learns to correct it, the faithful path is untouched with the fields off, and a batch without priors is
-refused by name."""
+network learns to correct it, a row whose prior the stream left out keeps the paper's loss, the faithful path is
+untouched with the fields off, and a batch without priors is refused by name."""
 
 from __future__ import annotations
 
@@ -11,7 +11,13 @@ import pytest
 import torch
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.contract import ACTION_KEY, REPLAY_PRIOR_KEY, STATE_KEY, poses_from_vectors_torch
+from lerobot_instant_policy.contract import (
+    ACTION_KEY,
+    REPLAY_PRIOR_KEPT_KEY,
+    REPLAY_PRIOR_KEY,
+    STATE_KEY,
+    poses_from_vectors_torch,
+)
 from lerobot_instant_policy.geometry.rigid_torch import compose, invert_rigid
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 from lerobot_instant_policy.policy.task_pool import EncoderSource, encode_task
@@ -150,3 +156,15 @@ def test_the_stream_plans_priors_as_the_policy_trains_and_runs_them():
     with pytest.raises(ValueError, match="not both"):
         InstantPolicyConfig(device="cpu", preset="refined", replay_anchored=True)
     assert np.isclose(InstantPolicyConfig(device="cpu", preset="refined").refine_fraction, 0.5)
+
+
+def test_rows_whose_prior_the_stream_left_out_are_never_refined(pooled):
+    """``observation.replay_prior_kept`` False (a wrong prior beyond the share kept): the row starts from noise even
+    with every row refined."""
+    policy = shipped(refine_fraction=1.0)
+    kept = torch.tensor([True, False, True, False])
+    _, refined_rows = policy._refinement({**pooled, REPLAY_PRIOR_KEPT_KEY: kept}, poses_from_vectors_torch(
+        pooled[STATE_KEY])[0])
+    assert refined_rows.tolist() == kept.tolist()
+    _, parts = policy.forward({**pooled, REPLAY_PRIOR_KEPT_KEY: kept})
+    assert parts["refined"] == 0.5

@@ -1,6 +1,6 @@
 """Replay priors of pseudo-tasks (``pseudo_demos.replay_priors``): the plan inference makes, re-timed to the live
 demonstration; a live demonstration that is one of its context's gets its own actions back; the stream and the pool
-carry the priors only when asked."""
+carry the priors only when asked, and keep a wrong prior with the probability asked."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.contract import REPLAY_PRIOR_KEY, poses_from_vectors
+from lerobot_instant_policy.contract import REPLAY_PRIOR_KEPT_KEY, REPLAY_PRIOR_KEY, poses_from_vectors
 from lerobot_instant_policy.data.replay_plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
+from lerobot_instant_policy.data.replay_segments import plan_is_wrong
 from lerobot_instant_policy.model.geometry_encoder import encoder_preset
 from lerobot_instant_policy.policy.task_pool import EncoderSource, encode_task
 from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
@@ -76,7 +77,8 @@ def test_a_live_demonstration_from_the_context_gets_its_own_actions_back(rendere
     planned = dataclasses.replace(task.frames.planned, demos=[*context, context[0]])
     first_cloud = task.context_clouds[0, 0].numpy()
     frames = np.array([0, context[0].num_frames // 2, context[0].num_frames - 3])
-    prior = replay_prior_actions(planned, first_cloud, first_cloud, frames, 8, plan)
+    prior, wrong = replay_prior_actions(planned, first_cloud, first_cloud, frames, 8, plan)
+    assert not wrong  # a plan that is the live demonstration itself is right
     steps = np.minimum(frames[:, None] + np.arange(8), context[0].num_frames - 1)
     np.testing.assert_allclose(prior[..., :3], context[0].action[steps][..., :3], atol=2e-3)
     np.testing.assert_array_equal(prior[..., 7], context[0].action[steps][..., 7])
@@ -92,3 +94,28 @@ def test_the_pool_carries_priors_only_when_the_stream_plans_them(rendered):
     assert REPLAY_PRIOR_KEY not in stream._task_samples(plain)[0]
     # the same task's live frames and clouds either way: the prior's extra cloud is not among them
     np.testing.assert_array_equal(plain.clouds.numpy(), rendered[0].clouds.numpy())
+
+
+def test_a_wrong_prior_is_kept_with_the_probability_asked_and_the_samples_say_so():
+    """The anchored plan of tasks whose objects moved apart: judged against each live demonstration (the
+    scene's ground truth), the wrong ones lose their prior for training at ``wrong_prior_keep`` 0 and keep it at 1;
+    the right ones keep it either way. The draw is the task's own: the same at every render."""
+    indices = [3, 4, 5, 6, 7, 8]
+    kept_none = PseudoTaskStream(stream_config(replay_plan="anchored", wrong_prior_keep=0.0, tasks_per_render=6))
+    tasks = kept_none.render_tasks(indices)
+    wrong = []
+    for task in tasks:
+        first = task.frames.planned.demos[0]
+        plan = plan_replay("t", [ReplaySource(task.context_clouds[0, 0].numpy(), first.action)],
+                           kept_none._render([task.frames])[0][-1].numpy(), REPLAY_REGISTRATION, "anchored")
+        wrong.append(plan_is_wrong(plan.actions, task.frames.planned.demos[-1].action))
+    assert any(wrong) and not all(wrong)  # both kinds among these tasks
+    assert [task.replay_prior_kept for task in tasks] == [not w for w in wrong]
+    samples = kept_none._task_samples(tasks[wrong.index(True)])
+    assert all(sample[REPLAY_PRIOR_KEPT_KEY].item() is False and REPLAY_PRIOR_KEY in sample for sample in samples)
+    source = EncoderSource(encoder_preset("small"), weights=str(WEIGHTS)).build()
+    assert encode_task(tasks[wrong.index(True)], source, 8).sample(0)[REPLAY_PRIOR_KEPT_KEY].item() is False
+    kept_all = PseudoTaskStream(stream_config(replay_plan="anchored", tasks_per_render=6)).render_tasks(indices)
+    assert all(task.replay_prior_kept for task in kept_all)
+    with pytest.raises(ValueError, match="wrong_prior_keep must lie in"):
+        stream_config(wrong_prior_keep=1.5)
