@@ -120,6 +120,8 @@ def test_flags_the_stream_sets_are_refused_and_a_missing_config_is_named(tmp_pat
     assert "nowhere.json" in capsys.readouterr().err
     assert main([config, "--stream.samples_per_task=0", *POLICY_FLAGS]) == 2
     assert "samples_per_task must be a positive integer" in capsys.readouterr().err
+    assert main([config, "--stream.wrong_prior_keep=1.5", *POLICY_FLAGS]) == 2
+    assert "wrong_prior_keep must lie in [0, 1]" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
 
 

@@ -158,6 +158,30 @@ def test_the_command_line_refuses_bad_settings_and_writes_nothing(tmp_path, caps
     assert not (tmp_path / "s").exists()
 
 
+def test_a_run_validates_from_the_replay_it_is_told_and_keys_its_cache_by_it(tmp_path, monkeypatch):
+    """``run`` / ``conclude`` take the replay start as ``compare`` does: its strength and plan reach every
+    ``lerobot-ip-action-error`` call, and a result validated another way is not read back for it."""
+    from workbench.cli.standing import build_parser, replay_options
+
+    args = build_parser().parse_args(["run", "--replay-init-strength", "0.25", "--replay-anchored", "true"])
+    config = StandingConfig(**replay_options(args))
+    assert (config.replay_init_strength, config.replay_per_object, config.replay_anchored) == (0.25, None, True)
+    commands = []
+
+    def refuse(command, **kwargs):
+        commands.append(command)
+        return standing_module.subprocess.CompletedProcess(command, 1, "", "stopped by the test")
+
+    monkeypatch.setattr(standing_module.subprocess, "run", refuse)
+    with pytest.raises(standing_module.StandingError, match="stopped by the test"):
+        standing_module.validate(config, standing_module.SHIPPED, tmp_path)
+    command = commands[0]
+    assert command[command.index("--replay-init-strength") + 1] == "0.25"
+    assert command[command.index("--replay-anchored") + 1] == "true" and "--replay-per-object" not in command
+    assert standing_module.validation_key(config)["replay_anchored"] is True
+    assert "replay_anchored" not in standing_module.validation_key(StandingConfig())  # old caches stay valid
+
+
 def test_figures_carry_the_intervals_over_tasks_and_the_curve_draws_them_where_present(tmp_path):
     result = _action_error(0.8)
     figure = figures(result)
