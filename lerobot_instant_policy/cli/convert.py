@@ -26,14 +26,7 @@ from ..perception.calibration import CalibrationError
 from ..perception.convert import ConversionError, ConvertSettings, convert
 from ..perception.depth import DepthUnitError
 from ..perception.segmentation import EmptyPointCloudError
-
-
-def _floats(text: str) -> tuple[float, float, float]:
-    """``"x,y,z"`` → three floats (an argparse type)."""
-    values = tuple(float(x) for x in text.split(","))
-    if len(values) != 3:
-        raise argparse.ArgumentTypeError(f"expected x,y,z, got {text!r}")
-    return values
+from .arguments import xyz
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,8 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gripper-key", help="key holding the gripper value (with --ee-link)")
     parser.add_argument("--gripper-index", type=int, default=-1)
     parser.add_argument("--gripper-open-above", type=float, default=0.5, help="gripper value at or above: open")
-    parser.add_argument("--workspace-low", type=_floats, default=(0.15, -0.5, -0.05), help="x,y,z (m, world)")
-    parser.add_argument("--workspace-high", type=_floats, default=(0.85, 0.5, 0.6), help="x,y,z (m, world)")
+    parser.add_argument("--workspace-low", type=xyz, default=(0.15, -0.5, -0.05), help="x,y,z (m, world)")
+    parser.add_argument("--workspace-high", type=xyz, default=(0.85, 0.5, 0.6), help="x,y,z (m, world)")
     parser.add_argument("--overwrite", action="store_true")
     return parser
 

@@ -24,7 +24,7 @@ from ..perception.hand_convert import HandConversionError, HandConvertSettings, 
 from ..perception.hand_detector import HandDetectorError, detect_recording_landmarks
 from ..perception.hand_recording import METADATA_FILE, HandRecordingError, find_hand_recordings
 from ..perception.segmentation import EmptyPointCloudError
-from .convert import _floats
+from .arguments import xyz
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="frames in a row the aperture must call for a gripper change before it changes (1: off)")
     parser.add_argument("--max-gap-frames", type=int, default=defaults.max_gap_frames,
                         help="longest run of frames without a hand that is bridged (longer: an error)")
-    parser.add_argument("--ee-offset", type=_floats, default=defaults.ee_offset_m, help="x,y,z (m, EE frame)")
+    parser.add_argument("--ee-offset", type=xyz, default=defaults.ee_offset_m, help="x,y,z (m, EE frame)")
     parser.add_argument("--window-frames", type=int, default=HandConvertSettings.window_frames,
                         help="landmarks averaged over this many frames centred on each (odd; 1: off) before mapping")
     parser.add_argument("--aperture-window-frames", type=int, default=HandConvertSettings.aperture_window_frames,
@@ -62,8 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--hand-mask-dilate", type=int, default=2,
                         help="pixels a recording's hand_mask is grown by (a detector's mask misses the hand's rim)")
     parser.add_argument("--num-points", type=int, default=2048)
-    parser.add_argument("--workspace-low", type=_floats, default=(0.15, -0.5, -0.05), help="x,y,z (m, world)")
-    parser.add_argument("--workspace-high", type=_floats, default=(0.85, 0.5, 0.6), help="x,y,z (m, world)")
+    parser.add_argument("--workspace-low", type=xyz, default=(0.15, -0.5, -0.05), help="x,y,z (m, world)")
+    parser.add_argument("--workspace-high", type=xyz, default=(0.85, 0.5, 0.6), help="x,y,z (m, world)")
     parser.add_argument("--overwrite", action="store_true")
     return parser
 

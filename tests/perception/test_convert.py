@@ -104,6 +104,10 @@ def test_cli_errors_are_one_line(recordings, tmp_path, capsys):
     assert "no LeRobot dataset" in capsys.readouterr().err
     assert main(["--input", str(recordings / "segmented"), *base]) == 2  # a cloud dataset has no depth cameras
     assert "carry no 'camera_calibration'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:  # argparse's own refusal of a workspace corner that is not x,y,z
+        main(["--input", str(recordings / "rgbd"), *base, "--workspace-low", "0.1,0.2"])
+    assert refused.value.code == 2 and "expected x,y,z, got '0.1,0.2'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_depth_stored_in_millimetres_but_labelled_metres_raises(tmp_path):
