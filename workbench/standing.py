@@ -594,10 +594,10 @@ def keep(save: Path, standing: Path = STANDING, curve_file: Path = CURVE_FILE) -
     if kept:
         shutil.rmtree(best, ignore_errors=True)
         best.mkdir(parents=True)
-        averaged = (save / STATE_DIR / AVERAGE_FILE).is_file()
-        # the kept weights are the last save's own file where they are the average: one blob in git, not two
-        shutil.copytree((last if averaged == (candidate["readout"] == "average") else save) / MODEL_DIR,
-                        best / MODEL_DIR)
+        # the compact last save holds the average where the save keeps one, else the raw weights: a best of the
+        # same weights is copied from it, the same file's bytes (one blob in git, not two)
+        same_as_last = candidate["readout"] == "average" or not (save / STATE_DIR / AVERAGE_FILE).is_file()
+        shutil.copytree((last if same_as_last else save) / MODEL_DIR, best / MODEL_DIR)
         (best / RECORD).write_text(json.dumps({"runs": [candidate]}, indent=2))
     point = curve_point(entry["samples_total"], entry["tasks_total"], entry["hidden_dim"], entry["device"],
                         entry["validation"], entry["config"]["val_tasks"], entry["config"]["val_frames_per_task"],
