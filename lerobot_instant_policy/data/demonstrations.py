@@ -91,6 +91,16 @@ def read_demonstration(dataset, episode_index: int, task: str) -> Demonstration:
     )
 
 
+def episodes_by_task(dataset) -> list[tuple[str, list[int]]]:
+    """Each task of ``dataset`` (:func:`open_demo_dataset`'s; an episode's first task string names it, as in the
+    pseudo-demonstrations ``lerobot-ip-generate`` writes) with its episode indices in order, the tasks in the order
+    of their first episode."""
+    by_task: dict[str, list[int]] = {}
+    for episode in dataset.meta.episodes:
+        by_task.setdefault(str(episode["tasks"][0]), []).append(int(episode["episode_index"]))
+    return sorted(((task, sorted(episodes)) for task, episodes in by_task.items()), key=lambda item: item[1][0])
+
+
 def demo_dataset_root(repo_id: str, root: str | Path | None) -> Path:
     """``root``, or LeRobot's local cache ``$HF_LEROBOT_HOME/<repo_id>`` when it is unset (never a download)."""
     if root:

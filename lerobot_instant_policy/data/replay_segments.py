@@ -176,4 +176,5 @@ def _turns(positions: np.ndarray, tolerance: float) -> list[int]:
             + [farthest + vertex for vertex in _turns(positions[farthest:], tolerance)])
 
 
-__all__ = ["SegmentConfig", "Segments", "anchor_segments", "gripper_changes", "nearest_object", "segment_ends"]
+__all__ = ["WRONG_PLAN_M", "SegmentConfig", "Segments", "anchor_segments", "gripper_change_kinds", "gripper_changes",
+           "nearest_object", "plan_is_wrong", "segment_ends"]

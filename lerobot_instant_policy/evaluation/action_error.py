@@ -56,13 +56,14 @@ import numpy as np
 import torch
 
 from ..contract import POINTCLOUD_KEY, STATE_KEY
-from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
+from ..data.demonstrations import Demonstration, episodes_by_task, open_demo_dataset, read_demonstration
+from ..data.replay_plan import ReplayPlan
+from ..data.replay_segments import plan_is_wrong
 from ..modeling_instant_policy import InstantPolicyPolicy
 from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
-from .replay_error import plan_error
-from .replay_priors import replay_priors
+from .replay_priors import plan_onto_live, replay_priors
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
 PHASES = ("first_third", "middle_third", "last_third")
@@ -92,26 +93,38 @@ class LiveFrame:
 
 @dataclasses.dataclass
 class HeldOutTask:
-    """A pseudo-task: its ``demos`` (all episodes but the last, in episode order) and ``frames`` of the last, whose
-    first cloud ``live_first_points (P, 3)`` and states ``live_state (F, 8)`` place a replay (:meth:`replay_priors`)."""
+    """A pseudo-task: its ``demos`` (all episodes but the last, in episode order), the last episode ``live`` and
+    ``frames`` of it; the live episode's first cloud places a replay (:meth:`replay_plan`), its states time it."""
 
     task: str
     live_episode: int
     demos: list[Demonstration]
     frames: list[LiveFrame]
-    live_first_points: np.ndarray
-    live_state: np.ndarray
-    live: Demonstration | None = None
+    live: Demonstration
+    _plans: dict = dataclasses.field(default_factory=dict, repr=False)
     _priors: dict = dataclasses.field(default_factory=dict, repr=False)
 
+    def replay_plan(self, num_demos: int, plan: str) -> ReplayPlan:
+        """The ``plan`` replay of the first ``num_demos`` demonstrations onto the live episode's first cloud
+        (:func:`.replay_priors.plan_onto_live`), planned once per setting."""
+        key = (num_demos, plan)
+        if key not in self._plans:
+            self._plans[key] = plan_onto_live(self.demos[:num_demos], self.live.points_world[0], plan)
+        return self._plans[key]
+
     def replay_priors(self, num_demos: int, horizon: int, plan: str) -> np.ndarray:
-        """``(frames, T, 8)``: the replay prior of every frame from the first ``num_demos`` demonstrations
-        (:func:`.replay_priors.replay_priors`), planned once per setting."""
+        """``(frames, T, 8)``: the replay prior of every frame from :meth:`replay_plan`
+        (:func:`.replay_priors.replay_priors`), computed once per setting."""
         key = (num_demos, horizon, plan)
         if key not in self._priors:
-            self._priors[key] = replay_priors(self.demos[:num_demos], self.live_first_points, self.live_state,
-                                              [frame.t for frame in self.frames], horizon, plan)
+            self._priors[key] = replay_priors(self.replay_plan(num_demos, plan), self.live.state,
+                                              [frame.t for frame in self.frames], horizon)
         return self._priors[key]
+
+    def replay_is_wrong(self, num_demos: int, plan: str) -> bool:
+        """Whether :meth:`replay_plan` is wrong against the live episode (:func:`~..data.replay_segments.
+        plan_is_wrong`)."""
+        return plan_is_wrong(self.replay_plan(num_demos, plan).actions, self.live.action)
 
 
 # ---------------------------------------------------------------------------------------------------- errors
@@ -185,18 +198,14 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
         raise ActionErrorError(f"tasks and frames-per-task must be at least 1, got {num_tasks}, {frames_per_task}")
     root = check_pseudo_demo_root(root)
     dataset = open_demo_dataset(repo_id or f"local/{root.name}", root)
-    by_task: dict[str, list[int]] = {}
-    for episode in dataset.meta.episodes:
-        by_task.setdefault(str(episode["tasks"][0]), []).append(int(episode["episode_index"]))
-    usable = {task: episodes for task, episodes in by_task.items() if len(episodes) >= 2}
+    usable = [(task, episodes) for task, episodes in episodes_by_task(dataset) if len(episodes) >= 2]
     if len(usable) < num_tasks:
         raise ActionErrorError(
             f"asked for {num_tasks} pseudo-tasks but the dataset at {root} has {len(usable)} with at least 2 episodes "
             f"(one live, ≥ 1 context)"
         )
     held_out = []
-    for task_number, (task, episodes) in enumerate(sorted(usable.items(), key=lambda item: min(item[1]))[:num_tasks]):
-        episodes = sorted(episodes)
+    for task_number, (task, episodes) in enumerate(usable[:num_tasks]):
         demos = [read_demonstration(dataset, episode_index, task) for episode_index in episodes]
         live = demos.pop()
         rng = np.random.default_rng([seed, task_number])
@@ -208,7 +217,7 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
             noise_seed = int(np.random.SeedSequence([seed, task_number, t]).generate_state(1)[0])
             phase = min(len(PHASES) - 1, len(PHASES) * t // live.num_frames)
             frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed, phase))
-        held_out.append(HeldOutTask(task, episodes[-1], demos, frames, live.points_world[0], live.state, live))
+        held_out.append(HeldOutTask(task, episodes[-1], demos, frames, live))
     return held_out
 
 
@@ -278,7 +287,7 @@ def swapped_context(tasks: list[HeldOutTask]) -> list[HeldOutTask]:
         raise ActionErrorError("the context swap needs at least 2 pseudo-tasks")
     return [
         dataclasses.replace(held, demos=[dataclasses.replace(demo, task=held.task)
-                                         for demo in tasks[(index + 1) % len(tasks)].demos], _priors={})
+                                         for demo in tasks[(index + 1) % len(tasks)].demos], _plans={}, _priors={})
         for index, held in enumerate(tasks)
     ]
 
@@ -507,11 +516,9 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
         for row, replay_mm, held in zip(result["per_task"], result["replay"]["translation_mm_by_task"], probe.tasks,
                                         strict=True):
             row["replay_mm"] = replay_mm
-            if held.live is not None:
-                row["replay_wrong"] = plan_error(held.demos[:own["N"]], held.live, config.replay_plan())["wrong"]
+            row["replay_wrong"] = held.replay_is_wrong(own["N"], config.replay_plan())
         result["intervals"].update(replay_intervals(result["per_task"]))
-        if all("replay_wrong" in row for row in result["per_task"]):
-            result["by_replay"] = replay_split(result["per_task"])
+        result["by_replay"] = replay_split(result["per_task"])
     return result
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.demonstrations import Demonstration
-from ..data.replay_plan import REPLAY_REGISTRATION, plan_replay
+from ..data.replay_plan import REPLAY_REGISTRATION, ReplayPlan, plan_replay
 
 # A gripper state that differs from the plan's costs as much as this many metres of EE position in the alignment.
 GRIPPER_MISMATCH_M = 0.05
@@ -48,16 +48,18 @@ def plan_steps(live_state: np.ndarray, planned: np.ndarray) -> np.ndarray:
     return earliest
 
 
-def replay_priors(demonstrations: list[Demonstration], live_first_points: np.ndarray, live_state: np.ndarray,
-                  frames: list[int], horizon: int, plan: str) -> np.ndarray:
-    """The replay prior of live frames ``frames``, ``(len(frames), T, 8)`` world frame: the plan of
-    ``demonstrations`` onto the live episode's first cloud ``live_first_points (P, 3)``, from the plan step of each
-    frame (:func:`plan_steps` on ``live_state (F, 8)``), planned as ``plan`` names (:data:`~..data.replay_plan.
-    REPLAY_PLANS`)."""
+def plan_onto_live(demonstrations: list[Demonstration], live_first_points: np.ndarray, plan: str) -> ReplayPlan:
+    """The ``plan`` replay (:data:`~..data.replay_plan.REPLAY_PLANS`) of ``demonstrations`` onto the live episode's
+    first cloud ``live_first_points (P, 3)``, with the registration inference uses."""
     task = demonstrations[0].task if demonstrations else ""
-    planned = plan_replay(task, demonstrations, live_first_points, REPLAY_REGISTRATION, plan)
+    return plan_replay(task, demonstrations, live_first_points, REPLAY_REGISTRATION, plan)
+
+
+def replay_priors(planned: ReplayPlan, live_state: np.ndarray, frames: list[int], horizon: int) -> np.ndarray:
+    """The replay prior of live frames ``frames``, ``(len(frames), T, 8)`` world frame: the ``planned`` actions
+    (:func:`plan_onto_live`) from the plan step of each frame (:func:`plan_steps` on ``live_state (F, 8)``)."""
     matched = plan_steps(live_state, planned.actions)
     return np.stack([planned.actions_from(int(matched[t]), horizon) for t in frames]).astype(np.float32)
 
 
-__all__ = ["GRIPPER_MISMATCH_M", "plan_steps", "replay_priors"]
+__all__ = ["GRIPPER_MISMATCH_M", "plan_onto_live", "plan_steps", "replay_priors"]

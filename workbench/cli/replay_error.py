@@ -27,7 +27,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from lerobot_instant_policy.data.demonstrations import open_demo_dataset, read_demonstration
+from lerobot_instant_policy.data.demonstrations import episodes_by_task, open_demo_dataset, read_demonstration
 from lerobot_instant_policy.data.replay_plan import REPLAY_PLANS
 from lerobot_instant_policy.evaluation.replay_error import error_quantiles, plan_error
 
@@ -72,17 +72,12 @@ def pseudo_task_errors(root: Path, num_tasks: int, context_demos: int, plans: li
     """Per plan: the pooled :func:`error_quantiles` over the first ``num_tasks`` pseudo-tasks of the dataset at
     ``root`` (module docstring); ``ValueError`` where it holds fewer with ``context_demos`` + 1 episodes."""
     dataset = open_demo_dataset("local/pseudo_tasks", root)
-    by_task: dict[str, list[int]] = defaultdict(list)
-    for episode in dataset.meta.episodes:
-        by_task[str(episode["tasks"][0])].append(int(episode["episode_index"]))
-    usable = sorted((episodes for episodes in by_task.values() if len(episodes) > context_demos), key=min)
+    usable = [(task, episodes) for task, episodes in episodes_by_task(dataset) if len(episodes) > context_demos]
     if len(usable) < num_tasks:
         raise ValueError(f"{root} holds {len(usable)} pseudo-tasks with {context_demos + 1} episodes or more, "
                          f"asked for {num_tasks}")
     errors = {plan: [] for plan in plans}
-    for episodes in usable[:num_tasks]:
-        episodes = sorted(episodes)
-        task = str(dataset.meta.episodes[episodes[0]]["tasks"][0])
+    for task, episodes in usable[:num_tasks]:
         demos = [read_demonstration(dataset, index, task) for index in episodes[:context_demos] + episodes[-1:]]
         for plan in plans:
             errors[plan].append(plan_error(demos[:-1], demos[-1], plan))
