@@ -7,7 +7,9 @@ library and the segmented-cloud renderer), ``pseudo_demos`` (pseudo-tasks, traje
 preview), ``model`` (geometry encoder, graph, σ / φ / ψ transformers, action diffusion; no LeRobot), ``perception``
 (depth → segmented clouds for real robots) and ``sim`` (the ``bullet_tabletop`` env). Then the policy: the LeRobot
 trio at this root (``configuration_instant_policy``, ``modeling_instant_policy``, ``processor_instant_policy``) and
-what it is built from in ``policy`` (features, optimizer, frame encodings, context encoder); ``baselines``
+what it is built from in ``policy`` (features, processors); ``training`` (the stream's seam into ``lerobot-train``,
+the task pool, the moving average, the optimizer, batch assembly, the context encoder, frame encodings, the language
+head's targets and training; it never imports the policy); ``baselines``
 (``demo_replay``, ``do_nothing``), ``pretraining`` (the geometry encoder's occupancy pretraining), ``evaluation``
 (offline action error, loss curves, the suite), ``benchmarks`` (speed on the user's machine) and ``cli`` (the
 ``lerobot-ip-*`` commands: parsers). Nothing low imports anything high. The repository's research tooling (training

@@ -46,7 +46,7 @@ from .policy.features import (
     contract_output_features,
     identity_normalization,
 )
-from .policy.optimizer import InstantPolicyAdamWConfig
+from .training.optimizer import InstantPolicyAdamWConfig
 
 logger = logging.getLogger(__name__)
 
@@ -170,7 +170,7 @@ class InstantPolicyConfig(PreTrainedConfig):
             and rotation flow errors, non-negative (default 0.01).
         optimizer_lr: AdamW's peak learning rate, positive (``None``: ``small`` 2e-4, the rate of the shipped
             checkpoint's training on the pseudo-task stream, ``paper`` 1e-5). AdamW runs PyTorch's fused kernel on
-            the CPU and CUDA (:class:`~.policy.optimizer.InstantPolicyAdamWConfig`).
+            the CPU and CUDA (:class:`~.training.optimizer.InstantPolicyAdamWConfig`).
         optimizer_betas: AdamW's betas (default (0.9, 0.999)).
         optimizer_eps: AdamW's eps (default 1e-8).
         optimizer_weight_decay: AdamW's weight decay (default 0.01).

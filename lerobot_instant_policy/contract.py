@@ -109,6 +109,34 @@ def vectors_from_poses_torch(T_world_ee: torch.Tensor, gripper_open: torch.Tenso
     return torch.cat([T_world_ee[..., :3, 3], quaternion, gripper_open[..., None].to(T_world_ee.dtype)], dim=-1)
 
 
+def checked_observation(batch: dict, num_points: int,
+                        cloud_required: bool = True) -> tuple[torch.Tensor | None, torch.Tensor]:
+    """``points_world (B, P, 3)`` and ``state (B, 8)`` of a policy batch, float32 and checked against the contract
+    with ``P = num_points``: ``KeyError`` for a missing key, ``ValueError`` naming a wrong shape or a non-finite value.
+    Without ``cloud_required`` a batch without ``observation.pointcloud`` gives ``points_world`` None."""
+    required = (POINTCLOUD_KEY, STATE_KEY) if cloud_required or POINTCLOUD_KEY in batch else (STATE_KEY,)
+    for key in required:
+        if key not in batch:
+            raise KeyError(f"instant_policy needs {key!r} in the batch, got keys {sorted(batch)}")
+    state = batch[STATE_KEY]
+    if state.ndim != 2 or state.shape[1] != 8:
+        raise ValueError(f"{STATE_KEY!r} must have shape (B, 8), got {tuple(state.shape)}")
+    if not torch.isfinite(state).all():
+        raise ValueError(f"{STATE_KEY!r} contains NaN or infinite values")
+    if POINTCLOUD_KEY not in required:
+        return None, state.float()
+    points = batch[POINTCLOUD_KEY]
+    expected = (len(state), num_points, 3)
+    if tuple(points.shape) != expected:
+        raise ValueError(
+            f"point clouds of the wrong size: {POINTCLOUD_KEY!r} must have shape (B, P, 3) = {expected}, got "
+            f"{tuple(points.shape)}; resample each cloud to {num_points} points"
+        )
+    if not torch.isfinite(points).all():
+        raise ValueError(f"{POINTCLOUD_KEY!r} contains NaN or infinite values")
+    return points.float(), state.float()
+
+
 def _checked_vectors(vectors):
     """``vectors`` (numpy or torch), after checking that their last axis is the 8-vector."""
     if vectors.ndim < 1 or vectors.shape[-1] != POSE_GRIPPER_SHAPE[0]:

@@ -1,20 +1,17 @@
 """``InstantPolicyPolicy``: the Instant Policy network as a LeRobot policy (``--policy.type=instant_policy``).
 
-Training (``lerobot-train``): every batch row is a frame of an episode with ``observation.pointcloud (P, 3)`` and
-``observation.state (8,)`` (world frame), its ``episode_index`` and ``index``; the ``horizon`` actions that follow it
-come from the dataset's action table (:mod:`.data.action_chunks`). The policy draws one N in ``min_demos …
-max_demos`` per batch (so every row has the same graph) and, per row, N other episodes of the row's task from a
-:class:`ContextBank` of the training dataset. The bank and the action table are read when the policy is built with
-the training dataset's ``dataset_meta`` (as ``lerobot-train`` does). The frozen encoder's output for every frame of
-that dataset is cached beside it (:mod:`.frame_encodings`; loaded, or built once, at the first ``forward``, on the
-policy's device), so a training step reads the scene nodes of its frames and of their context waypoints. None of
-this is part of ``model.safetensors``.
+Training (``lerobot-train``): :meth:`InstantPolicyPolicy.forward` is the network's loss on a batch assembled by
+:mod:`.training.batches`: frames of the training dataset with N other episodes of their task from its context bank
+(read when the policy is built with the training dataset's ``dataset_meta``, as ``lerobot-train`` does; the frozen
+encoder's output for every frame is cached beside the dataset, :mod:`.training.frame_encodings`), or the pseudo-task
+stream's and pool's batches, which carry their context. None of this is part of ``model.safetensors``.
 
 Evaluation (``lerobot-eval``) and deployment: the demonstrations of each batch row's ``task`` come from the
 dataset ``demo_repo_id`` at ``demo_root`` (``num_demos`` episodes), or from :meth:`set_demonstrations`. They take
-the training context's path (a bank of their waypoints → :class:`ContextEncoder` → :class:`DemoTensors`) once per
-task, and the result is reused at every control step. With ``context="language"`` a task whose demonstrations were
-not handed in is said in words instead: its ``task`` string through the language head (:mod:`.language.task_language`).
+the training context's path (a bank of their waypoints → :class:`~.training.context_encoder.ContextEncoder` →
+:class:`DemoTensors`) once per task, and the result is reused at every control step. With ``context="language"`` a
+task whose demonstrations were not handed in is said in words instead: its ``task`` string through the language head
+(:mod:`.language.task_language`).
 
 Actions: the network predicts ``T_EA``, the action poses in the current EE frame; the policy returns them as
 absolute world-frame EE targets ``(B, T, 8)`` in the layout of docs/design.md §4 (xyz, quaternion xyzw with ``w ≥ 0``,
@@ -34,35 +31,21 @@ from torch import Tensor
 
 from .configuration_instant_policy import InstantPolicyConfig
 from .contract import (
-    ACTION_KEY,
-    CONTEXT_GRIPPER_OPEN_KEY,
-    CONTEXT_ID_KEY,
-    CONTEXT_KEYS,
-    CONTEXT_POINTCLOUD_KEY,
-    CONTEXT_SCENE_FEATURES_KEY,
-    CONTEXT_SCENE_POSITIONS_KEY,
-    CONTEXT_T_WORLD_EE_KEY,
-    ENCODED_KEYS,
-    POINTCLOUD_KEY,
-    REPLAY_PRIOR_KEPT_KEY,
-    REPLAY_PRIOR_KEY,
-    SCENE_FEATURES_KEY,
-    SCENE_POSITIONS_KEY,
-    STATE_KEY,
+    checked_observation,
     poses_from_vectors_torch,
     vectors_from_poses_torch,
 )
-from .data.action_chunks import ActionChunks
 from .data.context_bank import ContextBank
-from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names, open_demo_dataset
+from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
 from .data.replay_plan import REPLAY_REGISTRATION, ReplayPlan, plan_replay
-from .geometry.rigid_torch import compose, invert_rigid
+from .geometry.rigid_torch import compose
 from .language.task_language import TaskLanguage
 from .model.bounds import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, check_range
 from .model.instant_policy_network import DemoTensors, InstantPolicyContext, InstantPolicyNetwork
 from .model.occupancy import load_encoder_weights
-from .policy.context_encoder import ContextEncoder
-from .policy.frame_encodings import FrameEncodings, build_frame_encodings, encoder_fingerprint, load_frame_encodings
+from .training.batches import TrainingData, planned_in_ee_frame, training_batch
+from .training.context_encoder import ContextEncoder
+from .training.frame_encodings import FrameEncodings
 
 logger = logging.getLogger(__name__)
 
@@ -103,17 +86,14 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         config.validate_features()
         self.config: InstantPolicyConfig = config
         self.network = InstantPolicyNetwork(config)
-        self._dataset_meta = dataset_meta
-        self._training_bank: ContextBank | None = None
-        self._training_frame_encodings: FrameEncodings | None = None
-        self._context_encoder: ContextEncoder | None = None
-        self._action_chunks: ActionChunks | None = None
+        # the training dataset's bank, action table and frame encodings (training.batches), when built with one
+        self.training_data: TrainingData | None = None
         self._task_contexts: dict[str, TaskContext] = {}
         if config.pretrained_encoder and load_encoder_weights:
             self.load_encoder_weights(config.encoder_weights_path())
         if isinstance(dataset_meta, LeRobotDatasetMetadata):
-            self._training_bank = self._read_training_bank(dataset_meta)
-            self._action_chunks = ActionChunks.from_dataset(dataset_meta.repo_id, dataset_meta.root)
+            self.training_data = TrainingData.from_dataset_meta(self.network, dataset_meta,
+                                                                config.cache_frame_encodings)
         self._queue: deque[Tensor] = deque()
         self._last_gripper: Tensor | None = None
         self._replay_plans: list[ReplayPlan] | None = None
@@ -155,180 +135,27 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         """Training loss of a batch from the training dataset, the pseudo-task stream or the encoded task pool.
 
         Args:
-            batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame, and
-                either ``action (B, T, 8)`` absolute EE targets (``action_is_pad (B, T)`` optional: padded actions
-                past the episode's end are replaced by its last action, i.e. the EE holds still) or, as
-                ``lerobot-train`` delivers it from a dataset, the row's own ``action (B, 8)`` and ``index (B,)``: the
-                chunk is then read from the training dataset's action table (:meth:`training_action_chunks`). The
-                context: the batch's own, as clouds (``contract.CONTEXT_KEYS``, the stream's: :meth:`batch_context`)
-                or already encoded (``contract.ENCODED_KEYS``, the task pool's, whose live frame comes encoded too
-                in place of its cloud: :meth:`encoded_batch_context`), or else ``episode_index (B,)``, whose task's
-                other episodes in the training dataset are drawn. With ``config.refine_fraction`` > 0 also
-                ``observation.replay_prior (B, T, 8)`` (the stream's and the pool's with
-                ``StreamConfig.replay_priors``): that share of the rows, drawn per row, starts from it
-                (:meth:`~.model.instant_policy_network.InstantPolicyNetwork.training_loss`).
+            batch: ``observation.pointcloud (B, P, 3)`` and ``observation.state (B, 8)`` in the world frame, the
+                actions (``action (B, T, 8)``, or each row's own ``action (B, 8)`` with ``index (B,)``) and the
+                context: carried as clouds (the pseudo-task stream's), carried encoded (the task pool's), or drawn
+                from the training dataset by ``episode_index (B,)``; with ``config.refine_fraction`` > 0 also
+                ``observation.replay_prior (B, T, 8)``. Assembled and checked by
+                :func:`~.training.batches.training_batch`.
 
         Returns:
             The loss (sum of the parts) and ``{"translation", "rotation", "gripper", "num_demos"}`` as floats, and
             ``"refined"``, the share of refined rows, when training to refine.
         """
-        points_world, state, T_world_ee, T_ee_actions, action_gripper = self.training_targets(batch)
-        batch_size = len(state)
-        gripper = (state[:, 7] > 0.5).to(state.dtype)
-        flip = torch.rand(batch_size, device=state.device) < self.config.gripper_flip_probability
-        gripper = torch.where(flip, 1.0 - gripper, gripper)
-
-        rng = np.random.default_rng(int(torch.randint(0, 2**31 - 1, (1,)).item()))
-        device = state.device
-        encoded = CONTEXT_SCENE_FEATURES_KEY in batch
-        carried = encoded or any(key in batch for key in CONTEXT_KEYS)
-        if carried:
-            available = batch[CONTEXT_T_WORLD_EE_KEY].shape[1] if CONTEXT_T_WORLD_EE_KEY in batch else 0
-        else:
-            if "episode_index" not in batch:
-                raise KeyError("instant_policy training needs 'episode_index' in the batch to draw context "
-                               "demonstrations, or the context itself (contract.CONTEXT_KEYS or ENCODED_KEYS)")
-            encoder = self.training_context_encoder()
-            episodes = batch["episode_index"].detach().cpu().numpy().reshape(-1).astype(np.int64)
-            # N is capped at the fewest other episodes of a row's task: a demonstration never repeats in one context.
-            available = int(encoder.bank.other_episode_counts(episodes).min())
-        num_demos = min(int(rng.integers(self.config.min_demos, self.config.max_demos + 1)), max(available, 1))
-        scene_geometry = None
-        if encoded:
-            demos = self.encoded_batch_context(batch, num_demos)
-            scene_geometry = (batch[SCENE_POSITIONS_KEY].to(device=device, dtype=torch.float32),
-                              batch[SCENE_FEATURES_KEY].to(device=device, dtype=torch.float32))
-        elif carried:
-            demos = self.batch_context(batch, num_demos)
-        else:
-            context_episodes = np.stack([encoder.bank.sample_context(int(episode), num_demos, rng)
-                                         for episode in episodes])
-            demos = encoder.demos(context_episodes, device)
-            scene_geometry = encoder.frames(batch["index"].detach().cpu().numpy(), device) if "index" in batch else None
-        context = self.network.encode_context(demos, points_world, T_world_ee, gripper, scene_geometry=scene_geometry)
-        prior, refined_rows = self._refinement(batch, T_world_ee)
-        losses = self.network.training_loss(context, T_ee_actions, action_gripper, prior=prior,
-                                            refined_rows=refined_rows)
+        drawn = training_batch(batch, self.config, self.network, self.training_data)
+        targets = drawn.targets
+        context = self.network.encode_context(drawn.demos, targets.points_world, targets.T_world_ee, drawn.gripper,
+                                              scene_geometry=drawn.scene_geometry)
+        losses = self.network.training_loss(context, targets.T_ee_actions, targets.action_gripper, prior=drawn.prior,
+                                            refined_rows=drawn.refined_rows)
         parts = {name: float(losses[name].detach()) for name in ("translation", "rotation", "gripper")}
-        if refined_rows is not None:
-            parts["refined"] = float(refined_rows.float().mean())
-        return losses["loss"], {**parts, "num_demos": float(num_demos)}
-
-    def _refinement(self, batch: dict[str, Tensor], T_world_ee: Tensor) -> tuple[Tensor | None, Tensor | None]:
-        """With ``config.refine_fraction`` > 0: the replay prior of the batch as a diffusion variable in each row's
-        EE frame ``(B, T, 7)`` and the rows that start from it ``(B,)`` (each with probability ``refine_fraction``,
-        among the rows whose prior the stream kept: ``observation.replay_prior_kept`` where the batch has it);
-        else ``(None, None)``. ``KeyError`` saying how to get priors when the batch has none."""
-        if not self.config.refine_fraction:
-            return None, None
-        if REPLAY_PRIOR_KEY not in batch:
-            raise KeyError(
-                f"refine_fraction={self.config.refine_fraction} trains on replay priors, but the batch has no "
-                f"{REPLAY_PRIOR_KEY!r}: train on the pseudo-task stream or pool (lerobot-ip-train), which plans them "
-                "when refine_fraction > 0, or set --policy.refine_fraction=0"
-            )
-        prior = self._in_ee_frame(REPLAY_PRIOR_KEY, batch[REPLAY_PRIOR_KEY], T_world_ee)
-        refined_rows = torch.rand(len(T_world_ee), device=T_world_ee.device) < self.config.refine_fraction
-        if REPLAY_PRIOR_KEPT_KEY in batch:
-            refined_rows &= batch[REPLAY_PRIOR_KEPT_KEY].to(device=refined_rows.device, dtype=torch.bool)
-        return prior, refined_rows
-
-    def _in_ee_frame(self, name: str, planned: Tensor, T_world_ee: Tensor) -> Tensor:
-        """Planned world-frame actions ``planned (B, T, 8)`` (``name`` in errors) as the diffusion variable
-        ``(B, T, 7)`` of actions relative to the current EE poses ``T_world_ee (B, 4, 4)``; ``ValueError`` for another
-        shape or a non-finite value."""
-        expected = (len(T_world_ee), self.config.horizon, 8)
-        if tuple(planned.shape) != expected:
-            raise ValueError(f"{name!r} must have shape (B, horizon, 8) = {expected}, got {tuple(planned.shape)}")
-        if not torch.isfinite(planned).all():
-            raise ValueError(f"{name!r} contains NaN or infinite values")
-        planned = planned.to(device=T_world_ee.device, dtype=T_world_ee.dtype)
-        T_world_planned, planned_gripper = poses_from_vectors_torch(planned)
-        T_ee_planned = compose(invert_rigid(T_world_ee)[:, None], T_world_planned)
-        return self.network.diffusion.normalize(T_ee_planned, planned_gripper.clamp(0.0, 1.0))
-
-    def encoded_batch_context(self, batch: dict[str, Tensor], num_demos: int) -> DemoTensors:
-        """The first ``num_demos`` demonstrations of an already encoded context (``contract.ENCODED_KEYS``:
-        ``(B, N, L, 4, 4)`` EE poses, ``(B, N, L)`` gripper states, the frozen encoder's scene nodes of each
-        waypoint in its own EE frame, ``(B, N, L, M, 3)`` positions and ``(B, N, L, M, D)`` features), checked:
-        ``KeyError`` for a missing key, ``ValueError`` naming a wrong shape or a non-finite value."""
-        missing = [key for key in ENCODED_KEYS if key not in batch]
-        if missing:
-            raise KeyError(f"an encoded training batch needs all of {list(ENCODED_KEYS)}; missing {missing}")
-        T_world_ee = batch[CONTEXT_T_WORLD_EE_KEY]
-        if T_world_ee.ndim != 5 or tuple(T_world_ee.shape[-2:]) != (4, 4) or len(T_world_ee) != len(batch[STATE_KEY]):
-            raise ValueError(f"{CONTEXT_T_WORLD_EE_KEY!r} must have shape (B, N, L, 4, 4) with B = "
-                             f"{len(batch[STATE_KEY])}, got {tuple(T_world_ee.shape)}")
-        check_range("the number of demonstrations N", num_demos, (1, T_world_ee.shape[1]))
-        check_range("num_waypoints (L)", T_world_ee.shape[2], SUPPORTED_WAYPOINTS)
-        device = batch[STATE_KEY].device
-
-        def first(key: str) -> Tensor:
-            return batch[key][:, :num_demos].to(device=device, dtype=torch.float32)
-
-        return DemoTensors(T_world_ee=first(CONTEXT_T_WORLD_EE_KEY), gripper_open=first(CONTEXT_GRIPPER_OPEN_KEY),
-                           scene_positions=first(CONTEXT_SCENE_POSITIONS_KEY),
-                           scene_features=first(CONTEXT_SCENE_FEATURES_KEY))
-
-    def batch_context(self, batch: dict[str, Tensor], num_demos: int) -> DemoTensors:
-        """The first ``num_demos`` demonstrations of the context a batch carries (``contract.CONTEXT_KEYS``:
-        ``(B, N, L, P, 3)`` world-frame clouds, ``(B, N, L, 4, 4)`` EE poses, ``(B, N, L)`` gripper states, ``(B,)``
-        ids), checked: ``ValueError`` naming the problem. The frozen encoder runs once per distinct id, each
-        waypoint's cloud in its own EE frame, as :class:`ContextEncoder` does for a dataset's waypoints."""
-        missing = [key for key in CONTEXT_KEYS if key not in batch]
-        if missing:
-            raise KeyError(f"a batch that carries its context needs all of {list(CONTEXT_KEYS)}; missing {missing}")
-        points, T_world_ee = batch[CONTEXT_POINTCLOUD_KEY], batch[CONTEXT_T_WORLD_EE_KEY]
-        gripper_open, ids = batch[CONTEXT_GRIPPER_OPEN_KEY], batch[CONTEXT_ID_KEY]
-        batch_size = len(batch[STATE_KEY])
-        if T_world_ee.ndim != 5 or tuple(T_world_ee.shape[-2:]) != (4, 4) or len(T_world_ee) != batch_size:
-            raise ValueError(f"{CONTEXT_T_WORLD_EE_KEY!r} must have shape (B, N, L, 4, 4) with B = {batch_size}, "
-                             f"got {tuple(T_world_ee.shape)}")
-        leading = tuple(T_world_ee.shape[:3])
-        check_range("the number of demonstrations N", num_demos, (1, leading[1]))
-        check_range("num_waypoints (L)", leading[2], SUPPORTED_WAYPOINTS)
-        expected = {CONTEXT_POINTCLOUD_KEY: (*leading, self.config.num_points, 3), CONTEXT_GRIPPER_OPEN_KEY: leading,
-                    CONTEXT_ID_KEY: (batch_size,)}
-        for key, shape in expected.items():
-            if tuple(batch[key].shape) != shape:
-                raise ValueError(f"{key!r} must have shape {shape}, got {tuple(batch[key].shape)}")
-        for key in (CONTEXT_POINTCLOUD_KEY, CONTEXT_T_WORLD_EE_KEY, CONTEXT_GRIPPER_OPEN_KEY):
-            if not torch.isfinite(batch[key]).all():
-                raise ValueError(f"{key!r} contains NaN or infinite values")
-        device = batch[STATE_KEY].device
-        points = points[:, :num_demos].to(device=device, dtype=torch.float32)
-        T_world_ee = T_world_ee[:, :num_demos].to(device=device, dtype=torch.float32)
-        _, row_of_id, first = _first_rows(ids.to(device))
-        positions, features = self.network.encode_observation(points[first], T_world_ee[first])
-        return DemoTensors(
-            T_world_ee=T_world_ee,
-            gripper_open=gripper_open[:, :num_demos].to(device=device, dtype=torch.float32),
-            scene_positions=positions[row_of_id],
-            scene_features=features[row_of_id],
-        )
-
-    def training_targets(self, batch: dict[str, Tensor]) -> tuple[Tensor | None, Tensor, Tensor, Tensor, Tensor]:
-        """The checked inputs and targets of a training batch (see :meth:`forward`): ``points_world (B, P, 3)`` (None
-        for a batch whose live frames come encoded, ``contract.SCENE_FEATURES_KEY``),
-        ``state (B, 8)``, ``T_world_ee (B, 4, 4)``, the action poses in the current EE frame ``T_ee_actions
-        (B, T, 4, 4)`` and the gripper commands ``action_gripper (B, T)`` in [0, 1] (padded actions held)."""
-        points_world, state = self._observation(batch, cloud_required=SCENE_FEATURES_KEY not in batch)
-        actions = batch.get(ACTION_KEY)
-        batch_size, horizon = len(state), self.config.horizon
-        if actions is not None and tuple(actions.shape) == (batch_size, 8) and "index" in batch:
-            # lerobot-train delivers each row's own action (action_delta_indices is None): read the chunks.
-            chunks, _ = self.training_action_chunks().chunks(batch["index"].detach().cpu().numpy(), horizon)
-            actions = torch.from_numpy(chunks).to(device=state.device, dtype=state.dtype)
-        if actions is None or tuple(actions.shape) != (batch_size, horizon, 8):
-            got = None if actions is None else tuple(actions.shape)
-            raise ValueError(f"{ACTION_KEY!r} must have shape (B, horizon, 8) = ({batch_size}, {horizon}, 8), got {got}")
-        actions = _hold_padded(actions, batch.get(f"{ACTION_KEY}_is_pad"))
-        if not torch.isfinite(actions).all():
-            raise ValueError(f"{ACTION_KEY!r} contains NaN or infinite values")
-        T_world_ee, _ = poses_from_vectors_torch(state)
-        T_world_actions, action_gripper = poses_from_vectors_torch(actions)
-        T_ee_actions = compose(invert_rigid(T_world_ee)[:, None], T_world_actions)
-        return points_world, state, T_world_ee, T_ee_actions, action_gripper.clamp(0.0, 1.0)
+        if drawn.refined_rows is not None:
+            parts["refined"] = float(drawn.refined_rows.float().mean())
+        return losses["loss"], {**parts, "num_demos": float(drawn.num_demos)}
 
     @torch.inference_mode()
     def predict_action_chunk(self, batch: dict[str, Tensor], generator: torch.Generator | None = None,
@@ -353,7 +180,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         if initial_actions is not None:
             if not self.config.replay_init_strength:
                 raise ValueError("initial_actions are a denoising start: set replay_init_strength to use them")
-            guess = self._in_ee_frame("initial_actions", initial_actions, T_world_ee)
+            guess = self._planned_variable("initial_actions", initial_actions, T_world_ee)
         elif self.config.replay_init_strength:
             guess = self.replay_guess(points_world, T_world_ee, tasks)
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
@@ -423,7 +250,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 for task, cloud in zip(tasks, clouds, strict=True)
             ]
         planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])
-        return self._in_ee_frame("the replay plan", torch.from_numpy(planned), T_world_ee)
+        return self._planned_variable("the replay plan", torch.from_numpy(planned), T_world_ee)
 
     # ------------------------------------------------------------------ checkpoints
     @classmethod
@@ -456,64 +283,26 @@ class InstantPolicyPolicy(PreTrainedPolicy):
     def clear_context_caches(self) -> None:
         """Forget what was computed with the previous weights: the training context's encoder outputs and frame
         encodings, and every task's encoded demonstrations (their waypoints and N, L are kept)."""
-        self._context_encoder = None
-        self._training_frame_encodings = None
+        if self.training_data is not None:
+            self.training_data.forget_encodings()
         for task_context in self._task_contexts.values():
             task_context.demos = task_context.waypoint_features = task_context.weights_version = None
 
     # ------------------------------------------------------------------ training context
-    def _read_training_bank(self, dataset_meta) -> ContextBank:
-        shape = tuple(dataset_meta.features.get(POINTCLOUD_KEY, {}).get("shape", ()))
-        if shape[:1] != (self.config.num_points,):
-            raise ValueError(
-                f"point clouds of the wrong size: the training dataset's {POINTCLOUD_KEY!r} has shape {shape}, "
-                f"the policy expects ({self.config.num_points}, 3)"
-            )
-        # With frame encodings the bank needs no clouds: their scene nodes come from the cache.
-        read_points = not self.config.cache_frame_encodings
-        return ContextBank.from_dataset_meta(dataset_meta, self.config.num_waypoints, read_points=read_points)
-
     def training_context_encoder(self) -> ContextEncoder:
-        """The training context: the training bank's waypoints with the frame encodings of its dataset (loaded from
-        beside the dataset, or built there on first use, with ``cache_frame_encodings``)."""
-        if self._context_encoder is None:
-            if self._training_bank is None:
-                raise RuntimeError(
-                    "instant_policy training draws context demonstrations from the training dataset: build the policy "
-                    "with dataset_meta (lerobot-train does) or call set_training_bank()"
-                )
-            encodings = self._training_frame_encodings
-            if encodings is None and self.config.cache_frame_encodings and self._dataset_meta is not None:
-                encodings = self._training_frame_encodings = self.frame_encodings(self._dataset_meta)
-            self._context_encoder = ContextEncoder(self.network, self._training_bank, encodings)
-        return self._context_encoder
-
-    def frame_encodings(self, dataset_meta) -> FrameEncodings:
-        """The frozen encoder's output for every frame of the dataset ``dataset_meta`` describes (its local ``root``),
-        for the current encoder weights: loaded from beside the dataset, or built there once (minutes on a CPU)."""
-        root, repo_id = dataset_meta.root, dataset_meta.repo_id
-        encoder = self.network.geometry_encoder
-        fingerprint = encoder_fingerprint(encoder, encoder.config.to_dict())
-        encodings = load_frame_encodings(root, fingerprint)
-        if encodings is None:
-            logger.info("instant_policy: encoding every frame of %s once with the frozen encoder", root)
-            encodings = build_frame_encodings(
-                open_demo_dataset(repo_id, root), fingerprint, self._encode_frames, self._device()
-            )
-        return encodings
-
-    def training_action_chunks(self) -> ActionChunks:
-        """Every frame's action of the training dataset (read from ``dataset_meta`` when the policy was built)."""
-        if self._action_chunks is None:
+        """The training context: the training bank's waypoints with the frame encodings of its dataset
+        (:class:`~.training.batches.TrainingData`)."""
+        if self.training_data is None:
             raise RuntimeError(
-                f"instant_policy training needs {ACTION_KEY!r} chunks of shape (B, horizon, 8): give them in the "
-                "batch, or build the policy with dataset_meta (lerobot-train does) to read them by 'index'"
+                "instant_policy training draws context demonstrations from the training dataset: build the policy "
+                "with dataset_meta (lerobot-train does) or call set_training_bank()"
             )
-        return self._action_chunks
+        return self.training_data.context_encoder()
 
     def set_training_bank(self, bank: ContextBank, frame_encodings: FrameEncodings | None = None) -> None:
         """Use ``bank`` for the training context (its waypoint count must be ``num_waypoints``), and
-        ``frame_encodings`` of the dataset it was read from for its waypoints and the batches' frames (``index``)."""
+        ``frame_encodings`` of the dataset it was read from for its waypoints and the batches' frames (``index``);
+        the action table read from ``dataset_meta``, if any, is kept."""
         if bank.num_waypoints != self.config.num_waypoints:
             raise ValueError(f"the bank has L={bank.num_waypoints} waypoints, the config {self.config.num_waypoints}")
         if bank.num_points is not None and bank.num_points != self.config.num_points:
@@ -521,8 +310,10 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                 f"point clouds of the wrong size: the training dataset has {bank.num_points} points per cloud, the "
                 f"policy expects {self.config.num_points}"
             )
-        self._context_encoder = ContextEncoder(self.network, bank, frame_encodings)
-        self._training_bank, self._training_frame_encodings = bank, frame_encodings
+        chunks = None if self.training_data is None else self.training_data.action_chunks
+        training_data = TrainingData(self.network, bank, chunks, frame_encodings)
+        training_data.context_encoder()  # refuses pieces that do not fit before the policy takes them
+        self.training_data = training_data
 
     # ------------------------------------------------------------------ inference context
     def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None:
@@ -569,38 +360,15 @@ class InstantPolicyPolicy(PreTrainedPolicy):
                     f"{demo.points_world.shape[1]} points per cloud, the policy expects {self.config.num_points}"
                 )
 
-    def _encode_frames(self, points_world: Tensor, state: Tensor) -> tuple[Tensor, Tensor]:
-        T_world_ee, _ = poses_from_vectors_torch(state)
-        return self.network.encode_observation(points_world, T_world_ee)
+    def _planned_variable(self, name: str, planned: Tensor, T_world_ee: Tensor) -> Tensor:
+        return planned_in_ee_frame(name, planned, T_world_ee, self.config.horizon, self.network.diffusion)
 
     def _device(self) -> torch.device:
         return next(self.parameters()).device
 
     # ------------------------------------------------------------------ input checks
-    def _observation(self, batch: dict[str, Tensor], cloud_required: bool = True) -> tuple[Tensor | None, Tensor]:
-        """``points_world (B, P, 3)`` and ``state (B, 8)`` of ``batch``, checked: ``ValueError`` naming the problem.
-        Without ``cloud_required`` a batch without ``observation.pointcloud`` gives ``points_world`` None."""
-        required = (POINTCLOUD_KEY, STATE_KEY) if cloud_required or POINTCLOUD_KEY in batch else (STATE_KEY,)
-        for key in required:
-            if key not in batch:
-                raise KeyError(f"instant_policy needs {key!r} in the batch, got keys {sorted(batch)}")
-        state = batch[STATE_KEY]
-        if state.ndim != 2 or state.shape[1] != 8:
-            raise ValueError(f"{STATE_KEY!r} must have shape (B, 8), got {tuple(state.shape)}")
-        if not torch.isfinite(state).all():
-            raise ValueError(f"{STATE_KEY!r} contains NaN or infinite values")
-        if POINTCLOUD_KEY not in required:
-            return None, state.float()
-        points = batch[POINTCLOUD_KEY]
-        expected = (len(state), self.config.num_points, 3)
-        if tuple(points.shape) != expected:
-            raise ValueError(
-                f"point clouds of the wrong size: {POINTCLOUD_KEY!r} must have shape (B, P, 3) = {expected}, got "
-                f"{tuple(points.shape)}; resample each cloud to {self.config.num_points} points"
-            )
-        if not torch.isfinite(points).all():
-            raise ValueError(f"{POINTCLOUD_KEY!r} contains NaN or infinite values")
-        return points.float(), state.float()
+    def _observation(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        return checked_observation(batch, self.config.num_points)
 
     def _batch_tasks(self, batch: dict, batch_size: int) -> list[str]:
         """Each row's task: ``batch["task"]``, or without it the one task of the demonstrations (handed in, or the
@@ -610,21 +378,3 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         return batch_task_names(batch.get("task"), batch_size, "instant_policy with context='language'",
                                 self._demonstrations.default_task, "; it says each row's task in words")
 
-
-def _first_rows(ids: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The distinct values of ``ids (B,)``, each row's position among them ``(B,)`` and each value's first row."""
-    unique, row_of_id = torch.unique(ids, return_inverse=True)
-    rows = torch.arange(len(ids), device=ids.device)
-    first = torch.full((len(unique),), len(ids), device=ids.device, dtype=rows.dtype).scatter_reduce(
-        0, row_of_id, rows, reduce="amin")
-    return unique, row_of_id, first
-
-
-def _hold_padded(actions: Tensor, is_pad: Tensor | None) -> Tensor:
-    """Replace padded actions ``(B, T, 8)`` (``is_pad (B, T)`` True past the episode's end) by the row's last real one."""
-    if is_pad is None or not bool(is_pad.any()):
-        return actions
-    steps = torch.arange(actions.shape[1], device=actions.device).expand_as(is_pad)
-    last_real = torch.where(is_pad, torch.zeros_like(steps), steps).amax(dim=1)
-    held = actions.gather(1, last_real[:, None, None].expand(-1, actions.shape[1], actions.shape[2]))
-    return torch.where(is_pad[..., None], held, actions)

@@ -29,9 +29,9 @@ from lerobot_instant_policy.geometry.se3 import make_pose, pose_from_pos_quat, p
 from lerobot_instant_policy.modeling_instant_policy import (
     CheckpointMismatchError,
     InstantPolicyPolicy,
-    _hold_padded,
 )
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
+from lerobot_instant_policy.training.batches import hold_padded
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
@@ -190,7 +190,7 @@ def test_denoising_starts_from_the_replayed_demonstration_at_the_episode_step(mo
 def test_padded_actions_hold_the_last_real_action():
     actions = torch.arange(2 * 4 * 8, dtype=torch.float32).view(2, 4, 8)
     is_pad = torch.tensor([[False, False, True, True], [False, False, False, False]])
-    held = _hold_padded(actions, is_pad)
+    held = hold_padded(actions, is_pad)
     assert torch.equal(held[0, 2], actions[0, 1]) and torch.equal(held[0, 3], actions[0, 1])
     assert torch.equal(held[0, :2], actions[0, :2]) and torch.equal(held[1], actions[1])
 

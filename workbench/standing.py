@@ -9,9 +9,9 @@ run's new start, the best save kept apart for shipping, and a point on the scali
 1. starts from the last save, ``checkpoints/stream/last/`` (LeRobot's ``pretrained_model/`` and ``training_state/``,
    kept compactly: :func:`write_compact`), resumed with ``lerobot-ip-train --resume=true``, its optimizer first
    rebuilding the moments the compact save leaves out (``moment_rebuild_steps`` at learning rate 0,
-   :mod:`lerobot_instant_policy.policy.optimizer`); at the very first start from ``--start`` (a LeRobot step
+   :mod:`lerobot_instant_policy.training.optimizer`); at the very first start from ``--start`` (a LeRobot step
    checkpoint, resumed the same way) or else the shipped checkpoint (its weights, a fresh optimizer);
-2. trains with ``lerobot-ip-train --pool`` (:mod:`lerobot_instant_policy.policy.task_pool`) on the stream of
+2. trains with ``lerobot-ip-train --pool`` (:mod:`lerobot_instant_policy.training.task_pool`) on the stream of
    ``stream_config`` with the run's seed, LeRobot saving every ``save_freq`` steps, while the two validation sets
    (``VALIDATION_CONFIGS``: held-out objects moved between demonstrations, or kept in one layout) are generated
    beside it unless present;
@@ -56,7 +56,7 @@ from safetensors.torch import save_file
 
 from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionErrorError, paired_ratio_difference
 from lerobot_instant_policy.evaluation.manifest import checkpoint_fingerprint
-from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE, write_averaged_model
+from lerobot_instant_policy.training.weight_average import AVERAGE_FILE, write_averaged_model
 
 from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
 

@@ -6,7 +6,7 @@ mean of its saves over a window (a tail average, as stochastic weight averaging 
 any one of them when that wandering, not the minimum's own progress, dominates the error. The saves are LeRobot step
 checkpoints ``save_freq`` steps apart, so a tail of k saves averages a window of about k × ``save_freq`` steps: the
 window an exponential moving average with decay ``1 − 1 / window`` would hold (the average a run keeps while it
-trains, :mod:`lerobot_instant_policy.policy.weight_average`). Comparing tails of several lengths, paired against the
+trains, :mod:`lerobot_instant_policy.training.weight_average`). Comparing tails of several lengths, paired against the
 last save on the validation sets, measures which window (hence which decay) reads out the most.
 
 ``python -m workbench.cli.standing average SAVE [SAVE ...] --out DIR``.
@@ -19,8 +19,8 @@ from pathlib import Path
 import torch
 from safetensors.torch import load_file
 
-from lerobot_instant_policy.policy.weight_average import WEIGHTS_FILE as WEIGHTS
-from lerobot_instant_policy.policy.weight_average import write_model
+from lerobot_instant_policy.training.weight_average import WEIGHTS_FILE as WEIGHTS
+from lerobot_instant_policy.training.weight_average import write_model
 
 
 class AverageError(ValueError):
@@ -51,7 +51,7 @@ def average_weights(models: list[Path]) -> dict[str, torch.Tensor]:
 
 def write_average(models: list[Path], out: Path) -> Path:
     """:func:`average_weights` of ``models`` written to ``out`` as a pretrained_model folder beside the last model's
-    config and processors (:func:`~lerobot_instant_policy.policy.weight_average.write_model`: ``FileExistsError``
+    config and processors (:func:`~lerobot_instant_policy.training.weight_average.write_model`: ``FileExistsError``
     where ``out`` exists, no half folder on a failure). Returns ``out``."""
     if out.exists():
         raise FileExistsError(f"{out} exists: choose a new folder")

@@ -211,7 +211,7 @@ def _frame_encodings(policy, bank: ContextBank, batch: dict):
     """The ``FrameEncodings`` of every frame of :func:`_training_inputs` (frames ``0 … E·L − 1``: the bank's
     waypoints; then the batch rows), encoded by ``policy``'s network as ``lerobot-train`` finds them beside its
     dataset."""
-    from ..policy.frame_encodings import FrameEncodings
+    from ..training.frame_encodings import FrameEncodings
 
     config = policy.config
     points = torch.cat([torch.from_numpy(bank.points_world.reshape(-1, config.num_points, 3)), batch[POINTCLOUD_KEY]])

@@ -1,5 +1,5 @@
 """Speed of training on fresh pseudo-tasks: the stream (``pseudo_demos.stream``, every cloud rendered and encoded in
-the update's process) or the rolling pool of encoded tasks (``policy.task_pool``, rendered and encoded in generator
+the update's process) or the rolling pool of encoded tasks (``training.task_pool``, rendered and encoded in generator
 processes), each feeding ``instant_policy``'s training update.
 
 Both are timed by wall time over the whole run, from before the first task is planned (the pool's generator
@@ -20,9 +20,9 @@ import torch
 
 from ..configuration_instant_policy import InstantPolicyConfig
 from ..contract import CONTEXT_ID_KEY
-from ..policy.task_pool import PoolConfig, TaskPool, encode_task
 from ..pseudo_demos.stream import PseudoTaskStream, StreamConfig
-from ..stream_training import policy_encoder_source, stream_config_for
+from ..training.stream_seam import policy_encoder_source, stream_config_for
+from ..training.task_pool import PoolConfig, TaskPool, encode_task
 
 
 def _synchronize(device: torch.device) -> None:
@@ -108,7 +108,7 @@ def pool_benchmark(stream_config: StreamConfig, pool_config: PoolConfig, preset:
 def replay_prior_benchmark(stream_config: StreamConfig, tasks: int = 24, preset: str = "small",
                            device: str | None = None) -> dict:
     """What replay priors (training to refine) cost a pool generator: the seconds per task of its work (plan, render
-    and encode, :func:`~..policy.task_pool.encode_task`) without and with the priors, on the same task indices, in
+    and encode, :func:`~..training.task_pool.encode_task`) without and with the priors, on the same task indices, in
     blocks of ``tasks_per_render`` whose order alternates, so that both variants share the machine's load. Figures:
     the median seconds per task of each and their ratio, the pool's task rate with priors relative to without."""
     device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))

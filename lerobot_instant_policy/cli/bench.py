@@ -305,7 +305,7 @@ def _run_stream(parser: argparse.ArgumentParser, args: argparse.Namespace) -> di
                device=args.device)
     if args.command == "stream":
         return stream_benchmark(config, **run)
-    from ..policy.task_pool import PoolConfig
+    from ..training.task_pool import PoolConfig
 
     chosen = {"capacity": args.capacity, "min_tasks": args.min_tasks, "generators": args.generators,
               "generator_threads": args.generator_threads, "device": args.generator_device}

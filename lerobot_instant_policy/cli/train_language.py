@@ -31,9 +31,9 @@ from ..data.demonstrations import DemonstrationError
 from ..evaluation.checkpoints import EvaluationError, load_policy
 from ..language.language_head import HeadBinding, LanguageHead, LanguageHeadConfig, LanguageHeadError
 from ..language.paraphrases import PARAPHRASES_FILE, ParaphraseError, Paraphrases
-from ..language.targets import LanguageTargets, TargetsError, cached_targets
 from ..language.text_encoder import DEFAULT_TEXT_ENCODER, SPEC_FORMS, TextEncoderError, make_text_encoder
-from ..language.training import TrainSettings, evaluate_language_head, train_language_head
+from ..training.language_head_training import TrainSettings, evaluate_language_head, train_language_head
+from ..training.language_targets import LanguageTargets, TargetsError, cached_targets
 
 PROG = "lerobot-ip-train-language"
 # every refusal of the inputs is one of these (ValueError subclasses) or a missing file

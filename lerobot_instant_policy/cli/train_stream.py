@@ -1,4 +1,4 @@
-"""``lerobot-ip-train``: ``lerobot-train`` on the pseudo-task stream (``stream_training``): fresh pseudo-tasks drawn
+"""``lerobot-ip-train``: ``lerobot-train`` on the pseudo-task stream (``training.stream_seam``): fresh pseudo-tasks drawn
 and rendered as training goes, from the distributions of a ``lerobot-ip-generate`` config.
 
   lerobot-ip-train --stream.config configs/generate/train_large.json --policy.type=instant_policy \\
@@ -11,7 +11,7 @@ and rendered as training goes, from the distributions of a ``lerobot-ip-generate
       --stream.samples_per_task 8 --policy.type=instant_policy --policy.device=cpu --batch_size=8 ... (the rolling
       pool of encoded fresh tasks: generator processes render and encode, the update reads encoded frames)
 
-``--average.decay 0.999`` keeps a moving average of the trained weights beside the run (``policy.weight_average``).
+``--average.decay 0.999`` keeps a moving average of the trained weights beside the run (``training.weight_average``).
 Every flag not of ``--stream.``, ``--pool`` or ``--average.`` goes to ``lerobot-train`` as it is (``--policy.*``,
 ``--steps``, ``--resume`` …); ``--dataset.*`` is the stream's.
 """
@@ -22,8 +22,8 @@ import argparse
 import dataclasses
 import sys
 
-from ..policy.task_pool import PoolConfig
 from ..pseudo_demos.stream import StreamConfig
+from ..training.task_pool import PoolConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="training to refine: the probability that a task whose replay prior is wrong keeps it "
                              "(default 1; the others train from noise)")
     parser.add_argument("--pool", action="store_true",
-                        help="draw from a rolling pool of encoded fresh tasks (policy.task_pool) instead of rendering "
+                        help="draw from a rolling pool of encoded fresh tasks (training.task_pool) instead of rendering "
                              "in the update; --stream.samples_per_task is then the live frames encoded per task")
     defaults = PoolConfig()
     for name, help_text in (("capacity", "tasks held, the oldest replaced"),
@@ -81,7 +81,7 @@ def stream_config_from_args(args: argparse.Namespace) -> StreamConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..stream_training import train
+    from ..training.stream_seam import train
 
     parser = build_parser()
     args, lerobot_argv = parser.parse_known_args(sys.argv[1:] if argv is None else argv)

@@ -41,6 +41,7 @@ from ..data.context_bank import ContextBank
 from ..data.demonstrations import check_dataset_features
 from ..modeling_instant_policy import InstantPolicyPolicy
 from ..pseudo_demos.generation import DEMOS_FILE, TASKS_FILE
+from ..training.batches import dataset_frame_encodings, training_targets
 from .checkpoints import (
     Checkpoint,
     EvaluationError,
@@ -158,7 +159,7 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
     """The mean of ``policy.forward``'s loss and parts over ``evaluation``'s frames, in batches of ``batch_size``.
 
     The policy's training bank becomes ``evaluation.bank``, with the frame encodings of ``evaluation``'s dataset for
-    the policy's encoder (``InstantPolicyPolicy.frame_encodings``: loaded from beside the dataset, built there once). Torch's RNG is seeded with ``seed`` inside ``torch.random.fork_rng``, so the
+    the policy's encoder (``training.batches.dataset_frame_encodings``: loaded from beside the dataset, built there once). Torch's RNG is seeded with ``seed`` inside ``torch.random.fork_rng``, so the
     caller's RNG state is untouched and every call with the same frames, ``batch_size`` and ``seed`` draws the same
     timesteps, noise, context episodes and gripper flips. With ``swap_context`` every frame's context comes from the
     next pseudo-task instead of its own (everything else drawn the same). The policy is left in the mode it was in.
@@ -166,7 +167,7 @@ def evaluate_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evaluat
     if batch_size < 1:
         raise EvaluationError(f"batch_size must be at least 1, got {batch_size}")
     bank = evaluation.bank.with_swapped_contexts() if swap_context else evaluation.bank
-    policy.set_training_bank(bank, policy.frame_encodings(evaluation.meta))
+    policy.set_training_bank(bank, dataset_frame_encodings(policy.network, evaluation.meta))
     loader = _loader(evaluation, batch_size)
     device = next(policy.parameters()).device
     sums = dict.fromkeys(LOSS_PARTS, 0.0)
@@ -203,8 +204,9 @@ def prior_only_loss(policy: InstantPolicyPolicy, preprocessor, evaluation: Evalu
     diffusion = policy.network.diffusion
     clean = []
     for batch in _loader(evaluation, batch_size):
-        _, _, _, T_ee_actions, action_gripper = policy.training_targets(preprocessor(batch))
-        clean.append(diffusion.normalize(T_ee_actions.double(), action_gripper.double()))
+        targets = training_targets(preprocessor(batch), policy.config.horizon, policy.config.num_points,
+                                   policy.training_data)
+        clean.append(diffusion.normalize(targets.T_ee_actions.double(), targets.action_gripper.double()))
     x0 = torch.cat(clean)
     mean, variance = x0.mean(dim=0), x0.var(dim=0, unbiased=False)
     with torch.random.fork_rng(devices=[]):  # drawn on the CPU: the same figure on every device

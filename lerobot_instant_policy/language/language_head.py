@@ -39,6 +39,7 @@ from torch import nn
 
 from ..config_io import config_from_dict
 from ..model.dense_graphs import dense_local_masks, dense_position_attr
+from ..model.fingerprint import encoder_fingerprint
 from ..model.graph import (
     GRIPPER,
     GRIPPER_TO_GRIPPER,
@@ -50,7 +51,6 @@ from ..model.graph import (
 )
 from ..model.graph_transformer import HeteroGraphTransformer
 from ..model.instant_policy_network import InstantPolicyNetwork
-from ..policy.frame_encodings import encoder_fingerprint
 from .text_encoder import TextEncoder
 
 LANGUAGE = "language"

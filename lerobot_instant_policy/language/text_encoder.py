@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..policy.frame_encodings import encoder_fingerprint
+from ..model.fingerprint import encoder_fingerprint
 
 DEFAULT_TEXT_ENCODER = "wordllama"
 HUB_PREFIX = "hub:"

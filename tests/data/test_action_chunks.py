@@ -3,6 +3,8 @@ LeRobot's delta timestamps give, and clear errors for tables and indices that ca
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -13,6 +15,7 @@ from lerobot_instant_policy.contract import ACTION_KEY
 from lerobot_instant_policy.data.action_chunks import ActionChunks
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.training.batches import training_targets
 
 REPO = "local/ip_action_chunks"
 HORIZON = 8
@@ -55,7 +58,7 @@ def test_lerobot_train_rows_give_the_loss_of_delta_timestamp_chunks(datasets):
         torch.manual_seed(0)
         config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, max_demos=1)
         policy = InstantPolicyPolicy(config, dataset_meta=dataset.meta).train()
-        targets = policy.training_targets(batch)
+        targets = dataclasses.astuple(training_targets(batch, config.horizon, config.num_points, policy.training_data))
         losses.append((float(policy.forward(batch)[0].detach()), targets))
     assert tuple(batch[ACTION_KEY].shape) == (6, HORIZON, 8)  # the delta-timestamp batch, for contrast
     (loss_rows, targets_rows), (loss_chunked, targets_chunked) = losses

@@ -15,9 +15,9 @@ from synthetic_demos import make_demonstration, object_pose
 from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
 from lerobot_instant_policy.data.lerobot_format import create_dataset, write_episode
 from lerobot_instant_policy.language.paraphrases import Paraphrases
-from lerobot_instant_policy.language.targets import LanguageTargets
 from lerobot_instant_policy.language.text_encoder import make_text_encoder
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.training.language_targets import LanguageTargets
 
 # Two tasks of the suite, each demonstrated on its own object (the synthetic approach-and-lift motion).
 DATASET_TASKS = {"pick_and_lift": "pb/mug", "knock_over": "pb/duck"}

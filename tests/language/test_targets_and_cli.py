@@ -12,11 +12,16 @@ import torch
 from lerobot_instant_policy.cli.train_language import main
 from lerobot_instant_policy.contract import poses_from_vectors_torch
 from lerobot_instant_policy.data.demonstrations import open_demo_dataset, read_demonstration
-from lerobot_instant_policy.language import targets as targets_module
 from lerobot_instant_policy.language.context import language_context
 from lerobot_instant_policy.language.language_head import LanguageHead
 from lerobot_instant_policy.language.paraphrases import ParaphraseError, Paraphrases
-from lerobot_instant_policy.language.targets import LanguageTargets, TargetsError, build_targets, cached_targets
+from lerobot_instant_policy.training import language_targets as targets_module
+from lerobot_instant_policy.training.language_targets import (
+    LanguageTargets,
+    TargetsError,
+    build_targets,
+    cached_targets,
+)
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 FRAMES = 4  # of each 12-frame live episode: 0, 4, 7, 11

@@ -12,7 +12,7 @@ import torch
 
 from lerobot_instant_policy.language.language_head import HeadBinding, LanguageHead, LanguageHeadConfig
 from lerobot_instant_policy.language.paraphrases import ParaphraseError
-from lerobot_instant_policy.language.training import (
+from lerobot_instant_policy.training.language_head_training import (
     TrainSettings,
     evaluate_language_head,
     language_head_loss,

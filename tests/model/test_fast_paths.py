@@ -207,7 +207,7 @@ def test_a_fresh_optimizer_rebuilds_its_moments_before_it_moves_the_weights():
     """With moment_rebuild_steps 3 a fresh optimizer keeps the weights for 3 steps while its moments fill, then its
     fourth step equals AdamW's fourth on the same gradients where the moments are the same; a state that has taken
     3 steps already (a full save resumed) moves at once. The rates the scheduler set survive the rebuild steps."""
-    from lerobot_instant_policy.policy.optimizer import InstantPolicyAdamWConfig
+    from lerobot_instant_policy.training.optimizer import InstantPolicyAdamWConfig
 
     generator = torch.Generator().manual_seed(0)
     weights = torch.randn(5, 4, generator=generator)
@@ -241,7 +241,7 @@ def test_a_fresh_optimizer_rebuilds_its_moments_before_it_moves_the_weights():
 
 
 def test_moment_rebuild_steps_must_be_non_negative():
-    from lerobot_instant_policy.policy.optimizer import InstantPolicyAdamWConfig
+    from lerobot_instant_policy.training.optimizer import InstantPolicyAdamWConfig
 
     with pytest.raises(ValueError, match="moment_rebuild_steps"):
         InstantPolicyAdamWConfig(moment_rebuild_steps=-1)

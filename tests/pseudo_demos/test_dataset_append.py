@@ -14,13 +14,13 @@ import pytest
 import torch
 from synthetic_demos import NUM_FRAMES, object_pose, write_demo_dataset
 
-from lerobot_instant_policy.policy.frame_encodings import (
+from lerobot_instant_policy.pseudo_demos import merge
+from lerobot_instant_policy.training.frame_encodings import (
     META_FILE,
     build_frame_encodings,
     cache_path,
     load_frame_encodings,
 )
-from lerobot_instant_policy.pseudo_demos import merge
 
 FINGERPRINT = "f" * 64
 BATCH = 16

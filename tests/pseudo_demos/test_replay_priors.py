@@ -14,10 +14,10 @@ from lerobot_instant_policy.contract import REPLAY_PRIOR_KEPT_KEY, REPLAY_PRIOR_
 from lerobot_instant_policy.data.replay_plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
 from lerobot_instant_policy.data.replay_segments import plan_is_wrong
 from lerobot_instant_policy.model.geometry_encoder import encoder_preset
-from lerobot_instant_policy.policy.task_pool import EncoderSource, encode_task
 from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
 from lerobot_instant_policy.pseudo_demos.replay_priors import aligned_frames, replay_prior_actions
 from lerobot_instant_policy.pseudo_demos.stream import PseudoTaskStream, StreamConfig
+from lerobot_instant_policy.training.task_pool import EncoderSource, encode_task
 
 WEIGHTS = InstantPolicyConfig(device="cpu").encoder_weights_path()
 

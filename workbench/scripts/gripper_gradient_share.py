@@ -15,6 +15,7 @@ from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.training.batches import training_targets
 
 root, repo_id = sys.argv[1], sys.argv[2]
 batches = int(sys.argv[3]) if len(sys.argv) > 3 else 8
@@ -39,7 +40,8 @@ for _, batch in zip(range(batches), loader):
     captured.clear()
     policy.forward(batch)
     logit = captured["prediction"][..., 6]
-    gripper_open = policy.training_targets(batch)[4][:, :, None].expand_as(logit)
+    targets = training_targets(batch, config.horizon, config.num_points, policy.training_data)
+    gripper_open = targets.action_gripper[:, :, None].expand_as(logit)
     terms = {
         "translation": captured["losses"]["translation"],
         "rotation": captured["losses"]["rotation"],

@@ -430,7 +430,7 @@ def test_the_best_holds_the_moving_average_where_it_validated_closer_than_the_ra
     moments nor a second average in its training state, and a best that is the average is the same file's bytes."""
     from safetensors.torch import load_file, save_file
 
-    from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE
+    from lerobot_instant_policy.training.weight_average import AVERAGE_FILE
 
     def save_with_average(step: int, raw_value: float, average_value: float, moved: float, average_moved: float,
                           layout: float = 0.6):
@@ -521,7 +521,7 @@ def test_a_compact_save_resumes_from_its_average_and_rebuilds_the_moments_before
 
     from safetensors.torch import load_file
 
-    from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE
+    from lerobot_instant_policy.training.weight_average import AVERAGE_FILE
 
     bin_dir = Path(sys.executable).parent
     (tmp_path / "stream.json").write_text(json.dumps({"seed": 5, "object_pool": ["pb/cube", "pb/duck"],

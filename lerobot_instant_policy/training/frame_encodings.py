@@ -84,16 +84,6 @@ class FrameEncodings:
         return positions.to(device), features.to(device)
 
 
-def encoder_fingerprint(encoder: torch.nn.Module, config: dict) -> str:
-    """SHA-256 of the encoder's architecture ``config`` and its weights (names, shapes, dtypes and bytes)."""
-    digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
-    for name, tensor in sorted(encoder.state_dict().items()):
-        value = tensor.detach().to("cpu").contiguous()
-        digest.update(f"{name}:{tuple(value.shape)}:{value.dtype}".encode())
-        digest.update(value.numpy().tobytes())
-    return digest.hexdigest()
-
-
 def data_file_digests(dataset_root: Path, data_files: list[list]) -> dict[str, str]:
     """SHA-256 of each file of ``data_files`` (``[relative path, size]`` pairs of :func:`frame_files_fingerprint`)."""
     digests = {}

@@ -4,6 +4,7 @@ or a build was interrupted."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -14,14 +15,15 @@ from synthetic_demos import object_pose, write_demo_dataset
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY, poses_from_vectors_torch
 from lerobot_instant_policy.data.context_bank import ContextBank
+from lerobot_instant_policy.model.fingerprint import encoder_fingerprint
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.policy.context_encoder import ContextEncoder
-from lerobot_instant_policy.policy.frame_encodings import (
+from lerobot_instant_policy.training.batches import encode_frames
+from lerobot_instant_policy.training.context_encoder import ContextEncoder
+from lerobot_instant_policy.training.frame_encodings import (
     CACHE_DIR,
     META_FILE,
     build_frame_encodings,
     cache_path,
-    encoder_fingerprint,
     load_frame_encodings,
 )
 
@@ -121,14 +123,15 @@ def test_an_interrupted_build_leaves_no_cache_and_no_debris(dataset):
         calls.append(len(points_world))
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return policy._encode_frames(points_world, state)
+        return encode_frames(policy.network, points_world, state)
 
     with pytest.raises(KeyboardInterrupt):
         build_frame_encodings(dataset, fingerprint, failing_encode, "cpu", batch_size=16)
     assert load_frame_encodings(dataset.root, fingerprint) is None
     assert list((dataset.root / CACHE_DIR).iterdir()) == []
     # The next build starts over and succeeds.
-    assert len(build_frame_encodings(dataset, fingerprint, policy._encode_frames, "cpu", batch_size=16)) == 72
+    assert len(build_frame_encodings(dataset, fingerprint, functools.partial(encode_frames, policy.network), "cpu",
+                                     batch_size=16)) == 72
 
 
 def test_frame_encodings_need_a_bank_read_from_their_dataset(dataset):

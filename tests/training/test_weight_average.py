@@ -1,4 +1,4 @@
-"""The moving average of the trained weights (``policy.weight_average``): the exact recursion over the trainable
+"""The moving average of the trained weights (``training.weight_average``): the exact recursion over the trainable
 parameters only, a save read back as it was, a saved average that does not fit refused, and bad decays refused."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE, WeightAverage, WeightAverageError
+from lerobot_instant_policy.training.weight_average import AVERAGE_FILE, WeightAverage, WeightAverageError
 
 
 def _module() -> torch.nn.Module:

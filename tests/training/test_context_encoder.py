@@ -13,7 +13,7 @@ from lerobot_instant_policy.configuration_instant_policy import InstantPolicyCon
 from lerobot_instant_policy.data.context_bank import ContextBank
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.policy.context_encoder import ContextEncoder
+from lerobot_instant_policy.training.context_encoder import ContextEncoder
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
 

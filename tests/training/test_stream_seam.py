@@ -1,5 +1,5 @@
 """``lerobot-ip-train``: LeRobot's own ``lerobot-train`` (0.6.1, pinned) on the pseudo-task stream, through the two
-names ``stream_training`` replaces. Each run is a child process, as a user runs it: LeRobot's loop, its checkpoints
+names ``training.stream_seam`` replaces. Each run is a child process, as a user runs it: LeRobot's loop, its checkpoints
 (loadable with ``from_pretrained``), its resume (the stream starts past the checkpoint's tasks), its refusal of flags
 the stream sets; and two processes under ``accelerate launch``, each with its own stream."""
 
@@ -17,13 +17,13 @@ import torch
 from safetensors import safe_open
 
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.policy.weight_average import AVERAGE_FILE, write_averaged_model
-from lerobot_instant_policy.stream_training import (
+from lerobot_instant_policy.training.stream_seam import (
     POOL_STATE_FILE,
     RESUME_TASKS_PER_SAMPLE,
     pool_start_task,
     resume_start_task,
 )
+from lerobot_instant_policy.training.weight_average import AVERAGE_FILE, write_averaged_model
 
 BIN = Path(sys.executable).parent
 # Two objects and one task group: every task loads the same two meshes.

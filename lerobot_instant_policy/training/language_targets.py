@@ -21,6 +21,7 @@ import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -28,16 +29,29 @@ from safetensors.numpy import load_file, save_file
 
 from ..contract import poses_from_vectors_torch
 from ..data.demonstrations import Demonstration, open_demo_dataset, read_demonstration
-from ..modeling_instant_policy import InstantPolicyPolicy
-from ..policy.frame_encodings import frame_files_fingerprint
-from .language_head import network_fingerprint
-from .paraphrases import Paraphrases
+from ..language.language_head import network_fingerprint
+from ..language.paraphrases import Paraphrases
+from ..model.instant_policy_network import InstantPolicyNetwork
+from .frame_encodings import frame_files_fingerprint
 
 logger = logging.getLogger(__name__)
 
 ARRAYS_FILE, META_FILE = "targets.safetensors", "targets.json"
 ARRAY_NAMES = ("task_index", "episode_index", "frame_index", "scene_positions", "scene_features", "gripper_open",
                "bottleneck")
+
+
+class DemonstrationPolicy(Protocol):
+    """What the targets need of the policy (``InstantPolicyPolicy`` is one): its network, and its way from a task's
+    demonstrations to the context a control step reads (``set_demonstrations``, then ``task_context``)."""
+
+    network: InstantPolicyNetwork
+
+    def parameters(self): ...
+
+    def set_demonstrations(self, demonstrations: list[Demonstration], num_waypoints: int | None = None) -> None: ...
+
+    def task_context(self, task: str): ...
 
 
 class TargetsError(ValueError):
@@ -140,7 +154,7 @@ def evenly_spaced_frames(num_frames: int, count: int | None) -> np.ndarray:
 
 
 @torch.no_grad()
-def task_targets(policy: InstantPolicyPolicy, demonstrations: list[Demonstration], num_demos: int = 2,
+def task_targets(policy: DemonstrationPolicy, demonstrations: list[Demonstration], num_demos: int = 2,
                  frames_per_episode: int | None = None, episode_indices: list[int] | None = None,
                  batch_size: int = 64) -> LanguageTargets:
     """The targets of one task from its ``demonstrations`` (module docstring; at least ``num_demos + 1``), labelled
@@ -182,7 +196,7 @@ def task_targets(policy: InstantPolicyPolicy, demonstrations: list[Demonstration
     return LanguageTargets([task], *(np.concatenate(rows[name]) for name in ARRAY_NAMES))
 
 
-def build_targets(policy: InstantPolicyPolicy, root: str | Path, repo_id: str | None = None, num_demos: int = 2,
+def build_targets(policy: DemonstrationPolicy, root: str | Path, repo_id: str | None = None, num_demos: int = 2,
                   frames_per_episode: int | None = None, tasks: list[str] | None = None,
                   paraphrases: Paraphrases | None = None) -> LanguageTargets:
     """The targets of every task of the demonstration dataset at ``root`` (repo id default ``local/<root name>``),
@@ -215,16 +229,16 @@ def build_targets(policy: InstantPolicyPolicy, root: str | Path, repo_id: str | 
     return targets
 
 
-def targets_build(policy: InstantPolicyPolicy, root: Path, num_demos: int, frames_per_episode: int | None,
+def targets_build(policy: DemonstrationPolicy, root: Path, num_demos: int, frames_per_episode: int | None,
                   tasks: list[str]) -> dict:
     """What determines the targets of the dataset at ``root``: the network's weights, N, the frames read, the tasks
-    and the dataset's files (:func:`~..policy.frame_encodings.frame_files_fingerprint`)."""
+    and the dataset's files (:func:`~.frame_encodings.frame_files_fingerprint`)."""
     return {"network_fingerprint": network_fingerprint(policy.network), "num_demos": num_demos,
             "frames_per_episode": frames_per_episode, "tasks": tasks, "dataset_root": str(Path(root).resolve()),
             "dataset": frame_files_fingerprint(Path(root))}
 
 
-def cached_targets(directory: str | Path, policy: InstantPolicyPolicy, root: str | Path, repo_id: str | None = None,
+def cached_targets(directory: str | Path, policy: DemonstrationPolicy, root: str | Path, repo_id: str | None = None,
                    num_demos: int = 2, frames_per_episode: int | None = None, tasks: list[str] | None = None,
                    paraphrases: Paraphrases | None = None) -> LanguageTargets:
     """:func:`build_targets`, stored at ``directory`` and read from there instead when what is stored was built the

@@ -15,14 +15,14 @@ task pool below) and nowhere else (the seam is tested against the pinned LeRobot
   ``IterableDatasetShard``, which would make each process draw every process's samples and drop all but its own.
   Batches reach the policy's device through LeRobot's pre-processor (its ``device_processor`` step).
 
-With a :class:`~.policy.task_pool.PoolConfig` the samples come from the rolling pool of encoded fresh tasks
-(:class:`~.policy.task_pool.TaskPool`) instead: its generator processes render and encode, the update reads encoded
-frames. Its state (:class:`~.policy.task_pool.PoolStats`: tasks received, samples, uses per task, the next task
+With a :class:`~.task_pool.PoolConfig` the samples come from the rolling pool of encoded fresh tasks
+(:class:`~.task_pool.TaskPool`) instead: its generator processes render and encode, the update reads encoded
+frames. Its state (:class:`~.task_pool.PoolStats`: tasks received, samples, uses per task, the next task
 index) is written beside every checkpoint's training state, ``training_state/task_pool.json``, by wrapping a third
 name, ``save_checkpoint``; this file is written after the rest of the checkpoint, so it marks a complete save.
 
 With an average decay (``--average.decay``) the run keeps a moving average of the trained weights
-(:class:`~.policy.weight_average.WeightAverage`), updated after every step by wrapping a fourth name,
+(:class:`~.weight_average.WeightAverage`), updated after every step by wrapping a fourth name,
 ``update_policy``, and saved with each checkpoint (``training_state/weight_average.safetensors``, before the pool's
 state); a resumed run reads it back from the checkpoint it continues.
 
@@ -42,10 +42,10 @@ from pathlib import Path
 
 import torch
 
-from .contract import ACTION_KEY, POINTCLOUD_KEY, POINTCLOUD_NAMES, POSE_GRIPPER_NAMES, STATE_KEY
-from .policy.task_pool import EncoderSource, PoolConfig, TaskPool
-from .policy.weight_average import WeightAverage, saved_decay
-from .pseudo_demos.stream import PseudoTaskStream, StreamConfig
+from ..contract import ACTION_KEY, POINTCLOUD_KEY, POINTCLOUD_NAMES, POSE_GRIPPER_NAMES, STATE_KEY
+from ..pseudo_demos.stream import PseudoTaskStream, StreamConfig
+from .task_pool import EncoderSource, PoolConfig, TaskPool
+from .weight_average import WeightAverage, saved_decay
 
 STREAM_REPO_ID = "local/pseudo_task_stream"
 # Where each process records the stream it draws (its config, place and first task), under the run's output_dir.
@@ -182,7 +182,7 @@ def policy_encoder_source(policy_config) -> EncoderSource:
 
 
 def write_pool_state(checkpoint_dir: Path, pool: TaskPool) -> None:
-    """The pool's :class:`~.policy.task_pool.PoolStats` (and its first task) beside a checkpoint's training state."""
+    """The pool's :class:`~.task_pool.PoolStats` (and its first task) beside a checkpoint's training state."""
     pool.receive()
     state = {"start_task": pool.start_task, "stats": pool.stats().to_dict()}
     path = Path(checkpoint_dir) / "training_state" / POOL_STATE_FILE

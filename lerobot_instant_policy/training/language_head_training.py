@@ -36,11 +36,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..language.language_head import HeadBinding, LanguageHead, LanguageHeadConfig, current_local_graph
+from ..language.paraphrases import Paraphrases
+from ..language.text_encoder import TextEncoder
 from ..model.instant_policy_network import InstantPolicyNetwork
-from .language_head import HeadBinding, LanguageHead, LanguageHeadConfig, current_local_graph
-from .paraphrases import Paraphrases
-from .targets import LanguageTargets, TargetsError
-from .text_encoder import TextEncoder
+from .language_targets import LanguageTargets, TargetsError
 
 
 @dataclass

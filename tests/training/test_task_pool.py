@@ -1,4 +1,4 @@
-"""The rolling pool of encoded fresh tasks (``policy.task_pool``): the frozen encoder's reading of the stream's
+"""The rolling pool of encoded fresh tasks (``training.task_pool``): the frozen encoder's reading of the stream's
 clouds, the stream's loss from encoded frames, the stream's disjoint task indices across processes and generators,
 uses counted, the oldest task replaced, and clear refusals."""
 
@@ -24,16 +24,16 @@ from lerobot_instant_policy.contract import (
 )
 from lerobot_instant_policy.model.geometry_encoder import encoder_preset
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.policy.task_pool import (
+from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
+from lerobot_instant_policy.pseudo_demos.stream import PseudoTaskStream, StreamConfig
+from lerobot_instant_policy.training.stream_seam import make_stream_datasets
+from lerobot_instant_policy.training.task_pool import (
     EncoderSource,
     PoolConfig,
     TaskPool,
     encode_task,
     frozen_encoder,
 )
-from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
-from lerobot_instant_policy.pseudo_demos.stream import PseudoTaskStream, StreamConfig
-from lerobot_instant_policy.stream_training import make_stream_datasets
 
 SHIPPED = "lerobot_instant_policy/assets/checkpoints/instant_policy"
 WEIGHTS = InstantPolicyConfig(device="cpu").encoder_weights_path()
@@ -182,7 +182,7 @@ def test_generators_exit_when_the_training_process_is_killed(tmp_path):
     script.write_text(f"""
 import itertools, sys, time
 from lerobot_instant_policy.model.geometry_encoder import encoder_preset
-from lerobot_instant_policy.policy.task_pool import EncoderSource, PoolConfig, TaskPool
+from lerobot_instant_policy.training.task_pool import EncoderSource, PoolConfig, TaskPool
 from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
 from lerobot_instant_policy.pseudo_demos.stream import StreamConfig
 

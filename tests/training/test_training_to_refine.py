@@ -20,10 +20,11 @@ from lerobot_instant_policy.contract import (
 )
 from lerobot_instant_policy.geometry.rigid_torch import compose, invert_rigid
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.policy.task_pool import EncoderSource, encode_task
 from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
 from lerobot_instant_policy.pseudo_demos.stream import PseudoTaskStream, StreamConfig
-from lerobot_instant_policy.stream_training import stream_config_for
+from lerobot_instant_policy.training.batches import encoded_context, refinement
+from lerobot_instant_policy.training.stream_seam import stream_config_for
+from lerobot_instant_policy.training.task_pool import EncoderSource, encode_task
 
 SHIPPED = "lerobot_instant_policy/assets/checkpoints/instant_policy"
 
@@ -109,7 +110,7 @@ def test_a_few_steps_of_training_to_refine_correct_the_prior(pooled):
         policy.eval()
         with torch.no_grad():
             context = policy.network.encode_context(
-                policy.encoded_batch_context(pooled, 2), None, poses_from_vectors_torch(pooled[STATE_KEY])[0],
+                encoded_context(pooled, 2), None, poses_from_vectors_torch(pooled[STATE_KEY])[0],
                 (pooled[STATE_KEY][:, 7] > 0.5).float(),
                 scene_geometry=(pooled["observation.scene_positions"], pooled["observation.scene_features"]))
             T_refined, _ = policy.network.sample_actions(context, num_inference_steps=4,
@@ -163,8 +164,8 @@ def test_rows_whose_prior_the_stream_left_out_are_never_refined(pooled):
     with every row refined."""
     policy = shipped(refine_fraction=1.0)
     kept = torch.tensor([True, False, True, False])
-    _, refined_rows = policy._refinement({**pooled, REPLAY_PRIOR_KEPT_KEY: kept}, poses_from_vectors_torch(
-        pooled[STATE_KEY])[0])
+    _, refined_rows = refinement({**pooled, REPLAY_PRIOR_KEPT_KEY: kept}, poses_from_vectors_torch(
+        pooled[STATE_KEY])[0], policy.config.refine_fraction, policy.config.horizon, policy.network.diffusion)
     assert refined_rows.tolist() == kept.tolist()
     _, parts = policy.forward({**pooled, REPLAY_PRIOR_KEPT_KEY: kept})
     assert parts["refined"] == 0.5
