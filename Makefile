@@ -4,7 +4,7 @@ PYTHON312 := $(shell for candidate in python3.12 $$HOME/.pyenv/versions/3.12*/bi
 VENV := .venv
 INSTALLED := $(VENV)/.installed
 
-.PHONY: gl-library demo pseudo-demos train-data train train-gpu campaign ladder results results-suite results-suite-instant results-study eval-suite perception-eval eval-metaworld osmesa results-candidate test install clean
+.PHONY: gl-library demo pseudo-demos train-data train train-standing results results-suite eval-suite perception-eval eval-metaworld osmesa results-candidate test install clean
 
 install: $(INSTALLED)
 
@@ -44,8 +44,8 @@ pseudo-demos: $(INSTALLED)
 		--preview outputs/pseudo_demos_preview.png
 
 # The default model (InstantPolicyConfig's defaults: the shipped model) on the default pseudo-demonstrations, 2 CPU
-# cores. The shipped checkpoint itself comes from: make ladder RUNG=2sb; make ladder RUNG=4sb FROM=2sb, continued by
-# the standing run on the pseudo-task stream (python -m workbench.cli.standing run, docs/training.md) to step 93,000. Both steps resume where they stopped (generation shard by shard, training from its last checkpoint).
+# cores. Both steps resume where they stopped (generation shard by shard, training from its last checkpoint). The
+# shipped checkpoint is a save of the standing run (make train-standing).
 TRAIN_DIR ?= outputs/train/instant_policy_small
 TRAIN_STEPS ?= 2000
 train-data: $(INSTALLED)
@@ -63,87 +63,16 @@ train: train-data
 	$(VENV)/bin/lerobot-ip-loss-curve --run $(TRAIN_DIR) --train-root outputs/pseudo_demos_train \
 		--val-root outputs/pseudo_demos_val --samples 128 --out docs/training_curve.png
 
-# Issue 11's CPU proof (docs/results.md, "In-context learning"): rung RUNG of the pseudo-task ladder (1: reach,
-# 2: reach_grip), held-out pseudo-tasks on held-out objects, LADDER_STEPS steps of batch 8 in bfloat16 (float32 on a
-# CPU without fast bfloat16 kernels, where the config turns use_amp off) with the action nodes seeing the scene through
-# the current nodes only and edge encodings at 4 frequencies (the best held-out context gain measured; 20-26 min on 2
-# AVX-512 cores, about 30 min in float32 on 2 AVX2 cores), then the action error against holding still and the context
-# gain. Generation and training resume. RUNG=1s: rung 1 with every demonstration of a task in one object layout
-# (--share-object-layout; docs/results.md, "Sixth follow-up"). RUNG=1b, 2b: rungs 1 and 2 with bounded turns (objects
-# ±45°, start roll ±15°, every gripper pose of a task ±30° about its approach); RUNG=1sb, 2sb: both (docs/results.md,
-# "Seventh follow-up"). RUNG=3sb, 4sb: rung 3 (grasp one object, place it relative to the second) and rung 4 (the
-# full generator) with bounded turns in one layout, 200 and 240 tasks x 4 demonstrations (docs/results.md, "Ninth
-# follow-up"). The rungs' generation configs are research presets, in workbench/configs/generate/; the validation sets
-# the campaign, the standing run and results.md read (val_moved_objects.json, val_one_layout.json: 96 pseudo-tasks
-# each, the first 24 those of rung 4's held-out sets) are in configs/generate/.
-RUNG ?= 1
-RUNG_NAMES = 1:rung1_reach 1s:rung1_reach_shared 1b:rung1_reach_bounded 1sb:rung1_reach_shared_bounded 2:rung2_reach_grip 2b:rung2_reach_grip_bounded 2sb:rung2_reach_grip_shared_bounded 3sb:rung3_grasp_place_shared_bounded \
-	4sb:rung4_full_shared_bounded
-rung_name = $(or $(patsubst $(1):%,%,$(filter $(1):%,$(RUNG_NAMES))),$(error unknown rung $(1); known: 1 1s 1b 1sb 2 2b 2sb 3sb 4sb))
-RUNG_NAME = $(call rung_name,$(RUNG))
-LADDER_STEPS ?= 8000
-# FROM=<rung>: a curriculum over the rungs, continuing that rung's finished `make ladder` network (its last checkpoint,
-# with its own config) on RUNG; rung 2 then rung 4 gave 0.63x and a gain of 1.90 on rung 4 against 0.78x and 1.46 for
-# the same 16,000 steps on rung 4 alone (docs/results.md, "Ninth follow-up"): make ladder RUNG=4sb FROM=2sb.
-FROM ?=
-LADDER_DIR = outputs/train/$(RUNG_NAME)$(if $(FROM),_from_$(FROM),)
-LADDER_FROM_CHECKPOINT = outputs/train/$(call rung_name,$(FROM))/checkpoints/last/pretrained_model
-# A fresh network is InstantPolicyConfig's defaults (the shipped model: 100 warmup steps, gripper weight 0.01) at the
-# ladder's rate, 1e-3 (the defaults' 2e-4 is the rate of the shipped checkpoint's later training on the stream),
-# trained in bfloat16 autocast.
-LADDER_START = $(if $(FROM),--policy.path=$(LADDER_FROM_CHECKPOINT),--policy.type=instant_policy --policy.use_amp=true \
-	--policy.optimizer_lr=1e-3)
-LADDER_CONFIGS = workbench/configs/generate
-LADDER_VAL_CONFIG = $(LADDER_CONFIGS)/$(RUNG_NAME)_val.json
-ladder: $(INSTALLED)
-	test -d outputs/$(RUNG_NAME)_val/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
-		--config $(LADDER_VAL_CONFIG) $(if $(wildcard outputs/$(RUNG_NAME)_val/.shards),--resume,)
-	test -d outputs/$(RUNG_NAME)_train/meta || OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-generate \
-		--config $(LADDER_CONFIGS)/$(RUNG_NAME)_train.json $(if $(wildcard outputs/$(RUNG_NAME)_train/.shards),--resume,)
-	$(if $(FROM),test -d $(LADDER_FROM_CHECKPOINT) || { echo "error: FROM=$(FROM) needs a finished \
-		make ladder RUNG=$(FROM) ($(LADDER_FROM_CHECKPOINT) is missing)"; exit 1; },)
-	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-train $(if $(wildcard $(LADDER_DIR)/checkpoints/last), \
-		--config_path=$(LADDER_DIR)/checkpoints/last/pretrained_model/train_config.json --resume=true, \
-		$(LADDER_START) \
-		--dataset.repo_id=local/$(RUNG_NAME)_train --dataset.root=outputs/$(RUNG_NAME)_train \
-		--steps=$(LADDER_STEPS) --batch_size=8 --num_workers=1 --log_freq=50 --save_freq=1000 --seed=1 \
-		--wandb.enable=false --output_dir=$(LADDER_DIR))
-	OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-action-error --policy-path $(LADDER_DIR)/checkpoints/last/pretrained_model \
-		--root outputs/$(RUNG_NAME)_val --tasks 24 --frames-per-task 4 --K 4 --N 2 --L 10 --no-untrained --json
-
-# Issue 12.6 (README "Training on a GPU"): one GPU with 16 CPU cores, about 25 minutes. Four rounds of 200 reach
-# pseudo-tasks x 6 demonstrations (about 54k frames each: 45 frames per episode; 12 workers at the 56 frames/s per
-# worker measured on an H100 machine's cores render one in about 80 s), 1,000 steps of batch 32 per round (5-6 steps/s
-# measured there: about 3.3 min), each round generated while the previous one trains; then the action error and
-# context gain on 24 held-out pseudo-tasks and the loss curve; float32 (use_amp is float16 on CUDA in LeRobot 0.6.1,
-# untried here). It resumes where it stopped. TRAIN_GPU_ARGS adds or overrides flags: '--start shipped',
-# '--family reach_grip', '--rounds 6', '--dry-run', or for several GPUs
-# '--launcher "accelerate launch --multi_gpu --num_processes=4"'. Runs workbench/train_rounds.py (research tooling,
-# not installed) with the python3 on the PATH when the package is installed there (an install without .venv, as on a
-# GPU machine without network), else with .venv's (installed on first use). The check runs outside the checkout,
-# whose egg-info would pass for an install.
-TRAIN_GPU_ARGS ?=
-TRAIN_PYTHON_ON_PATH := $(shell cd / && python3 -c "import importlib.metadata as m; \
-	m.distribution('lerobot_policy_instant_policy')" 2>/dev/null && command -v python3)
-train-gpu: $(if $(TRAIN_PYTHON_ON_PATH),,$(INSTALLED))
-	$(or $(TRAIN_PYTHON_ON_PATH),$(VENV)/bin/python) -m workbench.cli.train_rounds --config configs/train_rounds/gpu.json \
-		$(TRAIN_GPU_ARGS)
-
-# Issue 30's training campaign on the 2-core CPU (configs/train_rounds/cpu_campaign.json): the shipped checkpoint
-# continued on rounds of 120 fresh pseudo-tasks of the full generator with bounded turns, each round generated while
-# the previous one trains, the fraction of one-layout tasks annealed 0.5 -> 0 over the first five rounds (objects
-# move between demonstrations afterwards, the paper's setting), 5,000 steps of batch 8 per round in bfloat16 autocast
-# (1.28x float32 measured on this AVX-512-bf16 CPU without AMX; compile 1.05x, not worth its 2 minutes per round).
-# Validation: 24 held-out moved-object pseudo-tasks (configs/generate/val_moved_objects.json). Stop it any time
-# and run it again to resume; raise --rounds to go on past the last. OpenMP waits passively: with generation, the
-# loader and other jobs on the 2 cores, spinning threads made a step take 7 s instead of 0.2 s. On a machine without
-# the first campaign's outputs/, continue from its committed step-15,000 weights (checkpoints/campaign_015000,
-# moved objects only): make campaign CAMPAIGN_CONFIG=configs/train_rounds/cpu_campaign_continue.json
-CAMPAIGN_CONFIG ?= configs/train_rounds/cpu_campaign.json
-CAMPAIGN_ARGS ?=
-campaign: $(INSTALLED)
-	OMP_NUM_THREADS=2 OMP_WAIT_POLICY=PASSIVE $(VENV)/bin/python -m workbench.cli.train_rounds --config \
-		$(CAMPAIGN_CONFIG) $(CAMPAIGN_ARGS)
+# The standing run (workbench/standing.py, docs/training.md), which trained the shipped checkpoint's later steps: it
+# continues the committed save checkpoints/stream/last on the rolling pool of fresh pseudo-tasks
+# (configs/generate/stream_bounded_mixed.json) for HOURS of wall time at nice 10, validates its last save on the two
+# 96-task held-out sets (configs/generate/val_moved_objects.json, val_one_layout.json), paired with the best save's
+# and the shipped checkpoint's errors, makes it the new last save and, where it beats the best on both sets, the new
+# checkpoints/stream/best, and appends its point to docs/scaling_curve.{json,png}. Commit checkpoints/stream/ and the
+# curve after it.
+HOURS ?= 2.5
+train-standing: $(INSTALLED)
+	$(VENV)/bin/python -m workbench.cli.standing run --hours $(HOURS)
 
 # docs/deployment.md: demo_replay on the simulator's segmented clouds and on processed raw depth (--obs-type rgbd),
 # every task, 10 episodes each (issue 14's RGB-D vs segmented table).
@@ -171,10 +100,7 @@ OPTION = --policy-arg replay_init_strength=0.125 --policy-arg inference_steps=8 
 PER_OBJECT = --policy demo_replay --policy-arg registration_per_object=true
 SUITE_COLUMNS = instant_policy instant_policy-swap ip_per_object_s0125_K8 ip_per_object_s0125_K8-swap demo_replay \
 	demo_replay-swap demo_replay_per_object demo_replay_per_object-swap do_nothing
-STUDY = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --policy instant_policy --policy-path $(CKPT) \
-	--tasks $(STUDY_TASKS) --episodes 10 --demo-sets 1 --split dev --out outputs/results/study --env-arg render_size=64
-STUDY_TASKS ?= push_button,open_drawer
-results: results-suite results-study
+results: results-suite
 
 results-suite: $(INSTALLED)
 	$(SUITE) $(IP)
@@ -191,19 +117,6 @@ results-suite: $(INSTALLED)
 		--paired instant_policy=demo_replay --paired ip_per_object_s0125_K8=demo_replay_per_object \
 		--paired demo_replay_per_object=demo_replay --paired instant_policy=instant_policy-swap \
 		--paired ip_per_object_s0125_K8=ip_per_object_s0125_K8-swap --out docs/results_suite_$(SPLIT)
-
-# The earlier success criterion (the first step in the goal state counts) beside the held one, once, for the shipped
-# checkpoint and demo_replay on the same split (docs/results.md).
-results-suite-instant: $(INSTALLED)
-	$(SUITE) $(IP) --success instant --run-name instant_policy-instant
-	$(SUITE) --policy demo_replay --success instant --run-name demo_replay-instant
-
-results-study: $(INSTALLED)
-	for K in 1 2 4 8; do $(STUDY) --policy-arg inference_steps=$$K --run-name K$$K || exit 1; done
-	for N in 1 3 4; do $(STUDY) --num-demos $$N --run-name N$$N || exit 1; done
-	for L in 2 5 15; do $(STUDY) --policy-arg num_waypoints=$$L --run-name L$$L || exit 1; done
-	$(VENV)/bin/lerobot-ip-eval-table $(foreach run,K1 K2 K4 K8 N1 N3 N4 L2 L5 L15,$(run)=outputs/results/study/runs/$(run)) \
-		--allow-difference policy_options --out docs/results_study
 
 # docs/metaworld.md: the suite protocol in LeRobot's MetaWorld env (--env.type=metaworld_pointcloud) on MT10, the
 # test split, 3 sets of N=2 expert demonstrations x METAWORLD_EPISODES episodes per task: MetaWorld's scripted expert

@@ -39,7 +39,6 @@ from .model.bounds import (
     check_range,
 )
 from .model.geometry_encoder import GeometryEncoderConfig, encoder_preset
-from .policy import config_migration
 from .policy.features import (
     check_policy_features,
     contract_input_features,
@@ -220,8 +219,7 @@ class InstantPolicyConfig(PreTrainedConfig):
             ``False``); ``__post_init__`` turns it off on a CPU without fast bfloat16 kernels, where it slows
             training down.
 
-    What each default and option measured is in docs/policy.md. A ``config.json`` written before four options were
-    removed loads through :mod:`.policy.config_migration`.
+    What each default and option measured is in docs/policy.md.
     """
 
     preset: str = "small"
@@ -455,9 +453,6 @@ class InstantPolicyConfig(PreTrainedConfig):
     @property
     def reward_delta_indices(self) -> None:
         return None
-
-
-config_migration.install()  # older config.json files, with options since removed, load (policy/config_migration.py)
 
 
 def cpu_has_fast_bfloat16() -> bool:

@@ -3,10 +3,10 @@ must read its demonstrations. Swapping each held-out task's demonstrations for a
 noise) must make the action error clearly worse: context gain > 1.3, and the error must beat holding still. A
 property of the trained model, not a timing.
 
-The tasks are those of ``make ladder RUNG=1sb`` (its presets, fewer tasks): turns bounded as on a tabletop and every
-demonstration of a task in the live object layout, where issue 11's figures are met (docs/results.md, "Seventh
-follow-up"); the anchor object, the pose on it and the approach stay random per task, so only the demonstrations
-tell a task's motion. With moved objects the gain is lower (1.52 after 8,000 steps there), and with full turns and
+The tasks are those of the presets ``rung1_reach_shared_bounded_{train,val}.json`` (fewer tasks): turns bounded as on
+a tabletop and every demonstration of a task in the live object layout, where issue 11's figures are met
+(docs/results.md, "Seventh follow-up"); the anchor object, the pose on it and the approach stay random per task, so
+only the demonstrations tell a task's motion. With moved objects the gain is lower (1.52 after 8,000 steps there), and with full turns and
 moved objects no run has reached 1.3. About 11 minutes on 2 CPU cores, so marked slow (skipped when CI=true)."""
 
 from __future__ import annotations

@@ -1,10 +1,9 @@
 """``InstantPolicyConfig`` (``--policy.type=instant_policy``): registration, presets, validation, CLI parsing, JSON
-round trip, older config files; and ``make_instant_policy_pre_post_processors`` (LeRobot's default steps, IDENTITY
-normalisation, the point-cloud batch step)."""
+round trip; and ``make_instant_policy_pre_post_processors`` (LeRobot's default steps, IDENTITY normalisation, the
+point-cloud batch step)."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import draccus
@@ -21,7 +20,6 @@ from lerobot_instant_policy.configuration_instant_policy import (
 )
 from lerobot_instant_policy.contract import ACTION_KEY, POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.model.occupancy import OccupancyNetwork, save_occupancy_network
-from lerobot_instant_policy.policy.config_migration import RETIRED_OPTIONS
 from lerobot_instant_policy.processor_instant_policy import make_instant_policy_pre_post_processors
 
 
@@ -84,46 +82,6 @@ def test_the_refined_preset_is_the_small_model_trained_and_run_from_the_replay()
              "max_demos")
     assert [getattr(refined, name) for name in sizes] == [getattr(small, name) for name in sizes]
     assert config(preset="refined", refine_fraction=0.2, replay_init_strength=0.5).refine_fraction == 0.2
-
-
-def test_older_checkpoints_load_without_the_removed_options(tmp_path, caplog):
-    """A config.json written before four options were removed names them as ``null``: it loads the ways LeRobot and
-    this package load a checkpoint's config, as a config without them, and so does one where each has the value the
-    model kept (dropped with a warning); any other value is refused, naming it. Saving writes none of them."""
-    from lerobot.configs.train import TrainPipelineConfig
-
-    from lerobot_instant_policy.configuration_instant_policy import SHIPPED_CHECKPOINT
-
-    assert set(RETIRED_OPTIONS) == {"dense_attention", "context_scene_edges", "flow_loss_weighting", "noise_draws"}
-    assert not set(RETIRED_OPTIONS) & {field.name for field in dataclasses.fields(InstantPolicyConfig)}
-    shipped = json.loads((SHIPPED_CHECKPOINT / "config.json").read_text())
-    assert not set(RETIRED_OPTIONS) & set(shipped)
-    loaded = PreTrainedConfig.from_pretrained(SHIPPED_CHECKPOINT)
-    assert isinstance(loaded, InstantPolicyConfig) and loaded == InstantPolicyConfig.from_pretrained(SHIPPED_CHECKPOINT)
-    (tmp_path / "config.json").write_text(json.dumps({**shipped, **dict.fromkeys(RETIRED_OPTIONS)}))
-    assert PreTrainedConfig.from_pretrained(tmp_path) == loaded
-    assert "dropped removed options" not in caplog.text  # null: nothing to say
-    loaded.save_pretrained(tmp_path / "saved")
-    assert not set(RETIRED_OPTIONS) & set(json.loads((tmp_path / "saved" / "config.json").read_text()))
-
-    kept = {"dense_attention": False, "context_scene_edges": False, "flow_loss_weighting": "uniform", "noise_draws": 1}
-    older = {**shipped, **kept}
-    (tmp_path / "config.json").write_text(json.dumps(older))
-    assert PreTrainedConfig.from_pretrained(tmp_path) == loaded
-    assert "dropped removed options" in caplog.text and "noise_draws=1" in caplog.text
-    # lerobot-train --policy.path: a CLI override still applies
-    assert PreTrainedConfig.from_pretrained(tmp_path, cli_overrides=["--num_demos=3"]).num_demos == 3
-    # lerobot-train --resume: the policy section of an older train_config.json names the options with those values
-    train_config = json.loads((SHIPPED_CHECKPOINT / "train_config.json").read_text())
-    train_config["policy"].update(kept)
-    (tmp_path / "train_config.json").write_text(json.dumps(train_config))
-    resumed = TrainPipelineConfig.from_pretrained(tmp_path / "train_config.json")
-    assert isinstance(resumed.policy, InstantPolicyConfig) and resumed.policy.hidden_dim == loaded.hidden_dim
-    for name, value in (("noise_draws", 4), ("flow_loss_weighting", "noise"), ("context_scene_edges", True)):
-        (tmp_path / "config.json").write_text(json.dumps({**older, name: value}))
-        with pytest.raises(ValueError, match=f"options that were removed, with values that change the model: "
-                                             f"{name}={value!r}"):
-            PreTrainedConfig.from_pretrained(tmp_path)
 
 
 @pytest.mark.parametrize("fast_bfloat16", [True, False])

@@ -45,6 +45,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import tarfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -58,9 +59,13 @@ from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionEr
 from lerobot_instant_policy.evaluation.manifest import checkpoint_fingerprint
 from lerobot_instant_policy.training.weight_average import AVERAGE_FILE, write_averaged_model
 
-from .train_rounds import EVAL_K, EVAL_L, EVAL_N, json_result, program
-
 PROG = "python -m workbench.cli.standing"
+EVAL_K, EVAL_N, EVAL_L = 4, 2, 10  # the validation's setting of lerobot-ip-action-error
+MODULES = {
+    "lerobot-ip-generate": "lerobot_instant_policy.cli.generate",
+    "lerobot-ip-action-error": "lerobot_instant_policy.cli.action_error",
+    "lerobot-ip-train": "lerobot_instant_policy.cli.train_stream",
+}
 SHIPPED = Path("lerobot_instant_policy/assets/checkpoints/instant_policy")
 STANDING = Path("checkpoints/stream")
 CURVE_FILE = Path("docs/scaling_curve.json")
@@ -84,6 +89,25 @@ REPLAY_OPTIONS = ("replay_init_strength", "replay_per_object", "replay_anchored"
 
 class StandingError(RuntimeError):
     """A run that could not train, save or validate (the message says which step and shows its output)."""
+
+
+def program(name: str) -> list[str]:
+    """How to start the command ``name``: its console script beside this Python (a virtual environment's ``bin/``),
+    else ``python -m`` its module (an install without scripts beside the interpreter, such as ``../shared/gpu``'s)."""
+    script = Path(sys.executable).parent / name
+    return [str(script)] if script.is_file() else [sys.executable, "-m", MODULES[name]]
+
+
+def json_result(text: str) -> dict:
+    """The JSON object a command printed last on its stdout (after whatever the libraries it loads printed)."""
+    starts = [0] if text.startswith("{") else []
+    starts += [index + 1 for index in range(len(text)) if text.startswith("\n{", index)]
+    for start in starts:
+        try:
+            return json.loads(text[start:])
+        except ValueError:
+            continue
+    raise StandingError(f"no JSON result in the output: {text[-500:]!r}")
 
 
 @dataclass

@@ -1,3 +1,3 @@
 """What the LeRobot policy (``configuration_instant_policy``, ``modeling_instant_policy``) is built from besides the
-network and training (:mod:`..training`): its input and output features (``features``), the pre/post-processors'
-steps (``processors``) and the loading of older config files (``config_migration``)."""
+network and training (:mod:`..training`): its input and output features (``features``) and the pre/post-processors'
+steps (``processors``)."""

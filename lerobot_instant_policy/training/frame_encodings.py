@@ -10,25 +10,16 @@ Layout, under the dataset root::
     instant_policy_encodings/<encoder fingerprint>/
         scene_positions.npy   (F, M, 3) float32, frame f's nodes in frame f's EE frame (row = dataset ``index``)
         scene_features.npy    (F, M, D) float32
-        meta.json             the encoder fingerprint, the dataset fingerprint, each data file's SHA-256, F, M, D,
-                              and the frames copied from the cache it extended (0: built from scratch); written last
+        meta.json             the encoder fingerprint, the dataset fingerprint, F, M, D; written last
 
 A cache is used only when its ``meta.json`` names the same encoder weights and the same dataset files (paths and
 sizes); otherwise it is rebuilt. It is written in a temporary directory next to its final place and renamed into
 place, so an interrupted build leaves no directory that could be mistaken for a cache, and the previous cache stays
 in place until the new one replaces it.
-
-A dataset that grew by appended episodes (``pseudo_demos/merge.py``'s ``append_datasets``, as training in rounds does) keeps
-its old data files byte for byte and adds new ones after them, and its new frames' ``index`` values follow the old
-ones. The cache of the old dataset is then **extended**, not rebuilt: ``meta.json`` also records the SHA-256 of every
-data file, and when the cache's files are the first data files of the grown dataset with the same sizes and digests,
-its F_old rows are copied and only frames F_old … F_new − 1 are encoded. Any other change (an old file rewritten,
-removed or reordered) rebuilds the whole cache.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -46,7 +37,6 @@ logger = logging.getLogger(__name__)
 CACHE_DIR = "instant_policy_encodings"
 META_FILE = "meta.json"
 FORMAT_VERSION = 1
-COPY_CHUNK = 4096  # rows of a cache copied at once when it is extended
 
 # (points_world (B, P, 3), state (B, 8)) on the encoder's device → positions (B, M, 3), features (B, M, D)
 EncodeFrames = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
@@ -82,15 +72,6 @@ class FrameEncodings:
         positions = torch.from_numpy(self.scene_positions[flat]).reshape(*shape, *self.scene_positions.shape[1:])
         features = torch.from_numpy(self.scene_features[flat]).reshape(*shape, *self.scene_features.shape[1:])
         return positions.to(device), features.to(device)
-
-
-def data_file_digests(dataset_root: Path, data_files: list[list]) -> dict[str, str]:
-    """SHA-256 of each file of ``data_files`` (``[relative path, size]`` pairs of :func:`frame_files_fingerprint`)."""
-    digests = {}
-    for relative, _ in data_files:
-        with open(dataset_root / relative, "rb") as handle:
-            digests[relative] = hashlib.file_digest(handle, "sha256").hexdigest()
-    return digests
 
 
 def frame_files_fingerprint(dataset_root: Path) -> dict:
@@ -137,9 +118,7 @@ def build_frame_encodings(
 
     ``encode`` gets each chunk of ``batch_size`` frames' ``observation.pointcloud`` and ``observation.state`` as
     float32 tensors on ``device``. Frames are stored in the order of the dataset's ``index`` column, which must run
-    0…F−1 (LeRobot writes it so). When the cache in place was built for the first F_old frames of this dataset (its
-    data files are the dataset's first ones, unchanged: module docstring), those rows are copied and only frames
-    F_old…F−1 are encoded; otherwise every frame is.
+    0…F−1 (LeRobot writes it so).
     """
     from ..contract import POINTCLOUD_KEY, STATE_KEY
 
@@ -150,9 +129,6 @@ def build_frame_encodings(
     index = np.asarray(dataset.hf_dataset.with_format("numpy", columns=["index"])[:]["index"]).reshape(-1)
     if len(index) != frames or not np.array_equal(index, np.arange(frames)):
         raise ValueError(f"the dataset at {root} has frame indices that do not run 0…{frames - 1}; cannot cache them")
-    digests = data_file_digests(root, dataset_print["data_files"])
-    previous = _reusable_prefix(path, fingerprint, dataset_print, digests)
-    first_new = 0 if previous is None else len(previous)
     _remove_abandoned_builds(path)
     tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
     if tmp.exists():
@@ -162,14 +138,7 @@ def build_frame_encodings(
     columns = dataset.hf_dataset.with_format("numpy", columns=[POINTCLOUD_KEY, STATE_KEY])
     positions = features = None
     try:
-        if previous is not None:
-            positions, features = _open_arrays(tmp, frames, previous.scene_positions.shape[1:],
-                                               previous.scene_features.shape[1:])
-            for start in range(0, first_new, COPY_CHUNK):
-                stop = min(start + COPY_CHUNK, first_new)
-                positions[start:stop] = previous.scene_positions[start:stop]
-                features[start:stop] = previous.scene_features[start:stop]
-        for start in range(first_new, frames, batch_size):
+        for start in range(0, frames, batch_size):
             chunk = columns[start : start + batch_size]
             points = torch.from_numpy(np.ascontiguousarray(chunk[POINTCLOUD_KEY], dtype=np.float32)).to(device)
             state = torch.from_numpy(np.ascontiguousarray(chunk[STATE_KEY], dtype=np.float32)).to(device)
@@ -179,10 +148,10 @@ def build_frame_encodings(
                 positions, features = _open_arrays(tmp, frames, chunk_positions.shape[1:], chunk_features.shape[1:])
             positions[start : start + len(points)] = chunk_positions.float().cpu().numpy()
             features[start : start + len(points)] = chunk_features.float().cpu().numpy()
-            done, todo = start + len(points) - first_new, frames - first_new
-            if done * 10 // todo > (start - first_new) * 10 // todo:
+            done = start + len(points)
+            if done * 10 // frames > start * 10 // frames:
                 logger.info(
-                    "instant_policy: encoded %d / %d frames (%.0f s)", done, todo, time.perf_counter() - started
+                    "instant_policy: encoded %d / %d frames (%.0f s)", done, frames, time.perf_counter() - started
                 )
         positions.flush()
         features.flush()
@@ -190,27 +159,18 @@ def build_frame_encodings(
             "version": FORMAT_VERSION,
             "encoder": fingerprint,
             "dataset": dataset_print,
-            "data_file_sha256": digests,
-            "extended_from": first_new,
             "num_nodes": int(positions.shape[1]),
             "feature_dim": int(features.shape[2]),
         }
-        del positions, features, previous
+        del positions, features
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1))
         _replace_dir(tmp, path)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
-    if first_new:
-        logger.info(
-            "instant_policy: extended the frame encodings at %s from %d to %d frames (encoded the %d new frames of %s "
-            "in %.0f s)", path, first_new, frames, frames - first_new, root, time.perf_counter() - started
-        )
-    else:
-        logger.info(
-            "instant_policy: encoded %d frames of %s in %.0f s into %s", frames, root, time.perf_counter() - started,
-            path
-        )
+    logger.info(
+        "instant_policy: encoded %d frames of %s in %.0f s into %s", frames, root, time.perf_counter() - started, path
+    )
     return FrameEncodings.open(path)
 
 
@@ -222,31 +182,6 @@ def _open_arrays(directory: Path, frames: int, position_shape: tuple, feature_sh
     )
     features = np.lib.format.open_memmap(directory / "scene_features.npy", "w+", np.float32, (frames, *feature_shape))
     return positions, features
-
-
-def _reusable_prefix(
-    path: Path, fingerprint: str, dataset_print: dict, digests: dict[str, str]
-) -> FrameEncodings | None:
-    """The cache at ``path`` when it holds this encoder's output for the first frames of the dataset described by
-    ``dataset_print`` and ``digests``: its data files are the dataset's first data files, with the same sizes and
-    SHA-256 (so its F_old frames are the dataset's frames 0…F_old−1, byte for byte). None otherwise."""
-    try:
-        meta = json.loads((path / META_FILE).read_text())
-        if meta.get("version") != FORMAT_VERSION or meta.get("encoder") != fingerprint:
-            return None
-        old_files, old_digests = meta["dataset"]["data_files"], meta.get("data_file_sha256")
-        old_frames = int(meta["dataset"]["total_frames"])
-        if old_digests is None or dataset_print["data_files"][: len(old_files)] != old_files:
-            return None
-        if any(digests.get(name) != old_digests.get(name) for name, _ in old_files):
-            logger.info("instant_policy: a data file of the frame encodings at %s changed: encoding every frame", path)
-            return None
-        if old_frames > dataset_print["total_frames"]:
-            return None
-        previous = FrameEncodings.open(path)
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    return previous if len(previous) == old_frames else None
 
 
 def _remove_abandoned_builds(path: Path) -> None:

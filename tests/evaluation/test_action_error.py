@@ -138,8 +138,8 @@ def test_samples_per_prediction_reaches_every_prediction_from_the_command_line(h
 
 
 def test_the_command_line_gives_the_figures_a_training_run_reads(held_out_root, capsys):
-    """The command line ``workbench/standing.py`` and ``workbench/train_rounds.py`` run (one setting, no untrained
-    reference, the device named) prints JSON with the own error, holding still's and the context gain."""
+    """The command line ``workbench/standing.py`` runs (one setting, no untrained reference, the device named)
+    prints JSON with the own error, holding still's and the context gain."""
     assert action_error_main(["--policy-path", str(SHIPPED), "--root", str(held_out_root), "--repo-id", "local/val",
                               "--tasks", "2", "--frames-per-task", "1", "--K", "4", "--N", "2", "--L", "10",
                               "--no-untrained", "--json", "--device", "cpu"]) == 0

@@ -2,7 +2,7 @@
 (``python -m workbench.cli.bench lerobot-train``).
 
 ``lerobot-ip-bench train-step`` times one update in isolation. This runs the real command, ``python -m
-lerobot.scripts.lerobot_train`` with the ``make ladder`` model, for ``steps`` steps per variant, reads every log line
+lerobot.scripts.lerobot_train`` with the shipped model, for ``steps`` steps per variant, reads every log line
 LeRobot prints (``updt_s``, ``data_s``, ``smp/s``, averages over ``log_freq`` steps) and stamps it on arrival. Lines
 after ``skip`` steps count (compiling and warm-up come before): ``samples_per_s_wall`` is the batch size times the
 steps between the first and the last counted line over the seconds between their arrivals, end to end (checkpointing
@@ -70,7 +70,7 @@ def summarize(lines: list[LogLine], batch_size: int, skip: int) -> dict:
 def lerobot_train_command(root: str, repo_id: str, output_dir: str, steps: int, batch_size: int, num_workers: int,
                           log_every: int, compile_model: bool) -> list[str]:
     """``lerobot-train`` of the default model and recipe (the shipped model's, ``InstantPolicyConfig``'s defaults) in
-    bfloat16 autocast as ``make ladder`` trains it, no checkpoints, no W&B."""
+    bfloat16 autocast, no checkpoints, no W&B."""
     return [
         sys.executable, "-m", LEROBOT_TRAIN_MODULE, "--policy.type=instant_policy", "--policy.use_amp=true",
         f"--policy.compile_model={str(compile_model).lower()}", "--policy.push_to_hub=false",

@@ -1,5 +1,5 @@
-"""The training campaign's curve (issue 30, ``make campaign``): each checkpoint's held-out action error against holding
-still and its context gain, on moved-object and on one-layout pseudo-tasks, from ``lerobot-ip-action-error --json``
+"""The training campaign's curve (issue 30): each checkpoint's held-out action error against holding still and its
+context gain, on moved-object and on one-layout pseudo-tasks, from ``lerobot-ip-action-error --json``
 outputs named ``<dir>/s<step>_{moved,shared}.json`` (step 0: the checkpoint the campaign started from).
 
     python workbench/scripts/campaign_curve.py outputs/eval --samples-per-step 8 --out docs/campaign_curve

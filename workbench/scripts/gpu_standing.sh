@@ -8,7 +8,7 @@
 #   git sparse-checkout set --no-cone '/*' '!/docs/' '!/checkpoints/' '!/lerobot_instant_policy/assets/checkpoints/'
 # then two device calls, each within 30 s of the last:
 #   carry .device/wheels:   bash .device/wheels/on-device.sh wheels
-#   (here: git sparse-checkout set --no-cone '/*' '!/docs/' '!/checkpoints/campaign_015000/' '!/checkpoints/stream/best/'
+#   (here: git sparse-checkout set --no-cone '/*' '!/docs/' '!/checkpoints/stream/best/'
 #    '!/lerobot_instant_policy/assets/checkpoints/'   -- the last save travels, the rest stays out)
 #   carry .device/project:  bash .device/project/gpu_standing.sh 430 120
 # and here: git sparse-checkout disable; cat OUT/save.tar.part-* > F/save.tar; cp OUT/standing.json F/;

@@ -20,9 +20,11 @@ from workbench.standing import (
     RECORD,
     SHIPPED_RECORD,
     StandingConfig,
+    StandingError,
     accept,
     complete_saves,
     figures,
+    json_result,
     keep,
     pack,
     paired_against,
@@ -156,6 +158,12 @@ def test_the_command_line_refuses_bad_settings_and_writes_nothing(tmp_path, caps
     assert main(["--standing", str(tmp_path / "s"), "run", "--deadline-s", "10", "--validate-s", "20"]) == 2
     assert "validate_s must lie in" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_the_json_result_is_found_after_other_output():
+    assert json_result('loading {x}\n{\n  "a": 1\n}\n') == {"a": 1}
+    with pytest.raises(StandingError, match="no JSON result"):
+        json_result("nothing here")
 
 
 def test_a_run_validates_from_the_replay_it_is_told_and_keys_its_cache_by_it(tmp_path, monkeypatch):
