@@ -43,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stream.wrong_prior_keep", dest="wrong_prior_keep", type=float,
                         help="training to refine: the probability that a task whose replay prior is wrong keeps it "
                              "(default 1; the others train from noise)")
+    parser.add_argument("--stream.prior_time_shift", dest="prior_time_shift", type=int,
+                        help="training to refine: each replay prior read up to this many frames early or late, the "
+                             "timing error of a robot that does not follow the plan exactly (default 0)")
     parser.add_argument("--pool", action="store_true",
                         help="draw from a rolling pool of encoded fresh tasks (training.task_pool) instead of rendering "
                              "in the update; --stream.samples_per_task is then the live frames encoded per task")
@@ -72,7 +75,8 @@ def pool_config_from_args(args: argparse.Namespace, stream_config: StreamConfig)
 
 def stream_config_from_args(args: argparse.Namespace) -> StreamConfig:
     overrides = {name: getattr(args, name)
-                 for name in ("samples_per_task", "tasks_per_render", "surface_samples", "wrong_prior_keep")
+                 for name in ("samples_per_task", "tasks_per_render", "surface_samples", "wrong_prior_keep",
+                              "prior_time_shift")
                  if getattr(args, name) is not None}
     config = StreamConfig.from_generate_config(args.config, **overrides)
     if args.seed is None:

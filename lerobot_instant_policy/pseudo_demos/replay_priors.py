@@ -17,6 +17,11 @@ to the planned demonstration's frame by linear interpolation between the frames 
 waypoint (first and last frames included): the prior of live frame ``t`` and action ``j`` is the planned action at
 the mapped frame of ``t + j``.
 
+A robot that does not follow the plan exactly falls behind it or runs ahead, and inference, which reads the plan by
+control step, then hands the network the plan's actions of another moment. ``time_shifts (S,)`` models that timing
+error: the prior of live frame ``t`` is read at ``t + δ_t`` (clamped to the episode), ``δ_t`` frames late (> 0) or
+early (< 0).
+
 The plan is also judged against the live demonstration, the scene's ground truth
 (:func:`~..data.replay_segments.plan_is_wrong`: off at a gripper change or the end, or missing a gripper change), as
 the replays a policy meets are judged against their scenes' demonstrations, so the stream can keep wrong priors in
@@ -65,6 +70,7 @@ def replay_prior_actions(
     live_frames: np.ndarray,
     horizon: int,
     plan: str,
+    time_shifts: np.ndarray | None = None,
 ) -> ReplayPrior:
     """The replay prior of live frames ``live_frames (S,)``: ``(S, T, 8)`` absolute world-frame EE targets and gripper
     commands (the contract's layout), ``T = horizon``, and whether the whole plan is wrong against the live
@@ -72,12 +78,14 @@ def replay_prior_actions(
 
     ``planned.demos`` holds the context demonstrations then the live one; ``context_first_cloud (P, 3)`` is the first
     context demonstration's first cloud and ``live_first_cloud (P, 3)`` the live one's, world frame, as rendered for
-    training. ``plan``: one of :data:`~..data.replay_plan.REPLAY_PLANS` (module docstring).
+    training. ``plan``: one of :data:`~..data.replay_plan.REPLAY_PLANS` (module docstring). ``time_shifts (S,)``
+    int: each frame's timing error in frames (module docstring); None: none.
     """
     first, live = planned.demos[0], planned.demos[-1]
     source = ReplaySource(np.asarray(context_first_cloud), first.action)
     replay = plan_replay(f"pseudo-task {planned.task_index}", [source], live_first_cloud, REPLAY_REGISTRATION, plan)
-    steps = np.asarray(live_frames)[:, None] + np.arange(horizon)
+    read = np.asarray(live_frames) if time_shifts is None else np.maximum(np.asarray(live_frames) + time_shifts, 0)
+    steps = read[:, None] + np.arange(horizon)
     actions = replay.actions[aligned_frames(live, first, steps)].astype(np.float32)
     return ReplayPrior(actions, plan_is_wrong(replay.actions, live.action))
 

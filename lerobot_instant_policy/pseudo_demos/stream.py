@@ -35,7 +35,9 @@ A sample (a dict of tensors on ``device``, float32 unless noted), for a live fra
 - with ``StreamConfig.replay_priors``, ``observation.replay_prior (T, 8)``: the replay prior of actions
   ``t … t + T − 1`` (:mod:`.replay_priors`), world frame, and ``observation.replay_prior_kept`` (bool): False for a
   task whose plan is wrong against its live demonstration and is not among the wrong ones kept
-  (``StreamConfig.wrong_prior_keep``, drawn per task from the stream ``(seed, i, 6)``).
+  (``StreamConfig.wrong_prior_keep``, drawn per task from the stream ``(seed, i, 6)``); with
+  ``StreamConfig.prior_time_shift`` each frame's prior read up to that many frames early or late (drawn per frame,
+  uniformly, from ``(seed, i, 7)``).
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ from .replay_priors import replay_prior_actions
 _LIVE_STREAM = 4  # the live frames of task i are drawn from the random stream (seed, i, 4)
 _RESAMPLE_STREAM = 5  # and its clouds resampled ("fpsample") from (seed, i, 5)
 _PRIOR_STREAM = 6  # and whether its wrong replay prior is kept from (seed, i, 6)
+_PRIOR_TIMING_STREAM = 7  # and its replay priors' timing errors from (seed, i, 7)
 RESAMPLINGS = ("auto", "fpsample", "masked_fps")
 
 
@@ -92,7 +95,9 @@ class StreamConfig:
     prior (:mod:`.replay_priors`, the live demonstration's first cloud rendered for it, one cloud more per task),
     planned as ``replay_plan`` names (one of :data:`~..data.replay_plan.REPLAY_PLANS`); ``wrong_prior_keep``: the
     probability that a task whose plan is wrong keeps its prior for training (1: all kept; below 1 brings the share
-    of wrong priors down towards the share of wrong replays a policy meets, module docstring).
+    of wrong priors down towards the share of wrong replays a policy meets, module docstring);
+    ``prior_time_shift``: the largest timing error of a prior, in frames (each live frame's prior is read that many
+    frames early or late at most, :mod:`.replay_priors`; 0: on time).
     """
 
     generation: GenerationConfig = field(default_factory=GenerationConfig)
@@ -110,6 +115,7 @@ class StreamConfig:
     replay_priors: bool = False
     replay_plan: str = "per_object"
     wrong_prior_keep: float = 1.0
+    prior_time_shift: int = 0
 
     def __post_init__(self) -> None:
         self.validate()
@@ -128,6 +134,9 @@ class StreamConfig:
                 raise ValueError(f"StreamConfig.{name} must be a positive integer, got {value!r}")
         if not isinstance(self.num_waypoints, int) or isinstance(self.num_waypoints, bool) or self.num_waypoints < 2:
             raise ValueError(f"StreamConfig.num_waypoints must be an integer ≥ 2, got {self.num_waypoints!r}")
+        shift = self.prior_time_shift
+        if not isinstance(shift, int) or isinstance(shift, bool) or shift < 0:
+            raise ValueError(f"StreamConfig.prior_time_shift must be a non-negative integer, got {shift!r}")
         if not 0.0 <= self.wrong_prior_keep <= 1.0:
             raise ValueError(f"StreamConfig.wrong_prior_keep must lie in [0, 1], got {self.wrong_prior_keep!r}")
         if self.replay_plan not in REPLAY_PLANS:
@@ -307,11 +316,16 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
     def _with_replay_prior(self, frames: _TaskFrames, clouds: torch.Tensor) -> RenderedTask:
         """The rendered task of ``clouds`` (its frames, then the live demonstration's first cloud) with its replay
         prior, planned from the first context demonstration's first waypoint cloud (every demonstration's frame 0 is
-        its first waypoint) onto that first cloud; a wrong one kept with probability ``wrong_prior_keep``."""
+        its first waypoint) onto that first cloud, each frame's read off by up to ``prior_time_shift`` frames; a wrong
+        one kept with probability ``wrong_prior_keep``."""
         task = RenderedTask(frames, clouds[:-1])
         context_first = task.context_clouds[0, 0].cpu().numpy()
+        shift, shifts = self.config.prior_time_shift, None
+        if shift:
+            timing = np.random.default_rng([self.config.generation.seed, task.task_index, _PRIOR_TIMING_STREAM])
+            shifts = timing.integers(-shift, shift + 1, size=len(frames.live))
         prior = replay_prior_actions(frames.planned, context_first, clouds[-1].cpu().numpy(), frames.live,
-                                     self.config.horizon, self.config.replay_plan)
+                                     self.config.horizon, self.config.replay_plan, shifts)
         task.replay_prior = prior.actions
         if prior.wrong:
             draw = np.random.default_rng([self.config.generation.seed, task.task_index, _PRIOR_STREAM]).random()

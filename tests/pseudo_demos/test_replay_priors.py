@@ -119,3 +119,28 @@ def test_a_wrong_prior_is_kept_with_the_probability_asked_and_the_samples_say_so
     assert all(task.replay_prior_kept for task in kept_all)
     with pytest.raises(ValueError, match="wrong_prior_keep must lie in"):
         stream_config(wrong_prior_keep=1.5)
+
+
+def test_a_prior_read_off_time_is_the_plan_of_another_frame_and_the_same_for_a_seed(rendered):
+    """``prior_time_shift`` M: each live frame's prior is the on-time prior of a frame at most M away (clamped to the
+    episode), drawn the same for the same seed and task; 0 reads every prior on time (the faithful stream)."""
+    shift = 6
+    on_time = rendered[0]
+    shifted = PseudoTaskStream(stream_config(prior_time_shift=shift)).render_tasks([3, 4])[0]
+    again = PseudoTaskStream(stream_config(prior_time_shift=shift)).render_tasks([3, 4])[0]
+    np.testing.assert_array_equal(shifted.replay_prior, again.replay_prior)
+    np.testing.assert_array_equal(shifted.clouds.numpy(), on_time.clouds.numpy())  # only the prior's timing differs
+    live = on_time.frames.planned.demos[-1]
+    cloud = on_time.context_clouds[0, 0].numpy()
+    live_cloud = PseudoTaskStream(stream_config())._render([on_time.frames])[0][-1].numpy()
+    all_frames = np.arange(live.num_frames)
+    every, _ = replay_prior_actions(on_time.frames.planned, cloud, live_cloud, all_frames, 8, "per_object")
+    offsets = []
+    for row, frame in enumerate(on_time.frames.live):
+        matches = [other - frame for other in range(max(frame - shift, 0), min(frame + shift, live.num_frames - 1) + 1)
+                   if np.allclose(shifted.replay_prior[row], every[other], atol=1e-6)]
+        assert matches, f"frame {frame}: the prior is no on-time prior within {shift} frames"
+        offsets.append(min(matches, key=abs))
+    assert any(offset != 0 for offset in offsets)  # some prior is read off time
+    with pytest.raises(ValueError, match="prior_time_shift must be a non-negative integer"):
+        stream_config(prior_time_shift=-1)

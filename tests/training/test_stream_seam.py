@@ -122,6 +122,8 @@ def test_flags_the_stream_sets_are_refused_and_a_missing_config_is_named(tmp_pat
     assert "samples_per_task must be a positive integer" in capsys.readouterr().err
     assert main([config, "--stream.wrong_prior_keep=1.5", *POLICY_FLAGS]) == 2
     assert "wrong_prior_keep must lie in [0, 1]" in capsys.readouterr().err
+    assert main([config, "--stream.prior_time_shift=-2", *POLICY_FLAGS]) == 2
+    assert "prior_time_shift must be a non-negative integer" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
 
 
