@@ -5,9 +5,10 @@ property of the trained model, not a timing.
 
 The tasks are those of the presets ``rung1_reach_shared_bounded_{train,val}.json`` (fewer tasks): turns bounded as on
 a tabletop and every demonstration of a task in the live object layout, where issue 11's figures are met
-(docs/results.md, "Seventh follow-up"); the anchor object, the pose on it and the approach stay random per task, so
-only the demonstrations tell a task's motion. With moved objects the gain is lower (1.52 after 8,000 steps there), and with full turns and
-moved objects no run has reached 1.3. About 11 minutes on 2 CPU cores, so marked slow (skipped when CI=true)."""
+(docs/journal.md, 2026-11-25, "In-context learning: the gain stops with the turn to the goal; …"); the anchor object,
+the pose on it and the approach stay random per task, so only the demonstrations tell a task's motion. With moved
+objects the gain is lower (1.52 after 8,000 steps there), and with full turns and moved objects no run has reached 1.3.
+About 11 minutes on 2 CPU cores, so marked slow (skipped when CI=true)."""
 
 from __future__ import annotations
 

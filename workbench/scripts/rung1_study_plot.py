@@ -1,5 +1,6 @@
-"""Plot of the rung-1 studies in docs/results.md ("Third follow-up"): held-out translation error over hold-still and
-the context gain, against training steps (one run's checkpoints) and against the number of training tasks.
+"""Plot of the rung-1 studies in docs/journal.md (2026-11-23, "In-context learning: twice the samples in 30 minutes,
+…"): held-out translation error over hold-still and the context gain, against training steps (one run's checkpoints)
+and against the number of training tasks.
 
 Each input is a ``lerobot-ip-action-error --json`` output; the figure and the figures' data go to OUT.png / OUT.json.
 

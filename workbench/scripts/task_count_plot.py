@@ -1,5 +1,6 @@
-"""Plot of the rung-4 task-count study in docs/results.md ("Ninth follow-up"): translation error over hold-still and
-the context gain against the number of distinct training tasks, on held-out tasks and on the first training tasks.
+"""Plot of the rung-4 task-count study in docs/journal.md (2026-11-25, "In-context learning: rungs 3 and 4 in one
+layout, …"): translation error over hold-still and the context gain against the number of distinct training tasks,
+on held-out tasks and on the first training tasks.
 
 Each run gives two ``lerobot-ip-action-error --json`` outputs: on the held-out set and on the training set's first
 tasks (which every run trained on). The figure and its data go to OUT.png / OUT.json.

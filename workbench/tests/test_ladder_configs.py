@@ -1,5 +1,5 @@
 """The generation presets of the pseudo-task families' rungs (``workbench/configs/generate/``: the fixed sets the
-checkpoint shipped before was trained on, results.md's earlier held-out sets, the in-context learning test's) load
+checkpoint shipped before was trained on, the journal's earlier held-out sets, the in-context learning test's) load
 and validate, and none of them lies among the user-facing configs."""
 
 from __future__ import annotations
