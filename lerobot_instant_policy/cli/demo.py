@@ -5,7 +5,8 @@ Runs ``instant_policy`` the paper's way (``--checkpoint``, default the one shipp
 run from the per-object replay of its demonstrations (``--replay-prior-checkpoint``, default the one shipped beside
 it), each when present, and the classical ``demo_replay`` baseline for ``--episodes`` episodes each through
 ``lerobot-eval``, on the same scenes.
-Prints their success per episode side by side and writes a contact sheet (first and last frame of every episode,
+Prints their success per episode side by side, each column's test-split figure on the task beside them (from the
+checkout's ``docs/results_suite_test.json``), and writes a contact sheet (first and last frame of every episode,
 framed by its outcome) beside the videos. Exits with 1 when a policy that reads the demonstrations failed every
 episode.
 """
@@ -20,9 +21,11 @@ from ..configuration_instant_policy import SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PR
 from ..evaluation.demo import (
     DEFAULT_TASK,
     POLICY_CHOICES,
+    TEST_SPLIT_TABLE,
     failed_policies,
     policies_to_run,
     run_demo,
+    test_split_figures,
 )
 from ..evaluation.side_by_side import draw_contact_sheet, summary_table
 from ..evaluation.suite import SuiteError
@@ -50,6 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lerobot-ip-demo: error: {error}", file=sys.stderr)
         return 2
     print(summary_table(args.task, outcomes))
+    figures = test_split_figures(args.task, policies)
+    if figures:
+        print(f"test split on {args.task} ({TEST_SPLIT_TABLE}: 3 demonstration sets x 10 episodes): "
+              + ", ".join(f"{name} {figure}" for name, figure in figures.items()))
     sheet = draw_contact_sheet(args.task, outcomes, args.out / f"contact_sheet_{args.task}.png")
     print(f"contact sheet (first and last frame of every episode): {sheet}")
     videos = [str(episode.video) for episodes in outcomes.values() for episode in episodes if episode.video]

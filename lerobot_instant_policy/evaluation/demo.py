@@ -3,20 +3,29 @@
 Records 2 scripted demonstrations of the task and runs, through ``lerobot-eval`` on the same scenes (the same seeds),
 ``instant_policy`` the paper's way (from pure noise) and from the per-object replay of its demonstrations (the two
 checkpoints shipped in the package, when present) and the classical ``demo_replay`` baseline;
-``evaluation.side_by_side`` tabulates their episodes and draws the contact sheet.
+``evaluation.side_by_side`` tabulates their episodes and draws the contact sheet. Beside its own few episodes it reads
+each column's test-split figure on the task from the suite's committed success table (:func:`test_split_figures`).
+The default task, ``close_box``, is one where the learned correction matters on the test split: the network from the
+replay 30/30, the replay alone 15/30, the paper's inference 12/30.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..configuration_instant_policy import SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PRIOR_CHECKPOINT
 from .side_by_side import EpisodeOutcome, episode_outcomes, success_percent
 from .suite import SuiteSettings, run_task
 
-DEFAULT_TASK = "pick_and_lift"
+DEFAULT_TASK = "close_box"
 REPLAY_PRIOR = "instant_policy_replay_prior"  # the demo's name for instant_policy run from the replay prior
+# the suite's test-split success table in a checkout, and the column of each demo policy in it
+TEST_SPLIT_TABLE = Path("docs/results_suite_test.json")
+TEST_SPLIT_COLUMNS = {"instant_policy": "instant_policy", REPLAY_PRIOR: "ip_per_object_s0125_K8",
+                      "demo_replay": "demo_replay", "do_nothing": "do_nothing"}
 POLICY_CHOICES = ("auto", "instant_policy", REPLAY_PRIOR, "demo_replay", "do_nothing")
 
 
@@ -71,6 +80,25 @@ def run_demo(task: str, policies: list[DemoPolicy], episodes: int, batch_size: i
         report(f"task {task}: {column.name} succeeded in {success_percent(outcomes[column.name]):.0f}% of "
                f"{len(outcomes[column.name])} episodes")
     return outcomes
+
+
+def test_split_figures(task: str, policies: list[DemoPolicy], table: Path = TEST_SPLIT_TABLE) -> dict[str, str]:
+    """Each policy's ``successes/episodes`` on ``task`` in the test-split success ``table``
+    (``lerobot-ip-eval-table``'s JSON), by the policy's demo name; a policy whose column or task the table lacks, or
+    every policy when there is no table (an installed package without the repository's docs), is left out. Only the
+    shipped checkpoints' columns are the table's: a policy run from another ``--checkpoint`` is left out too."""
+    if not table.is_file():
+        return {}
+    rows = {(row["policy"], row["task"]): row for row in json.loads(table.read_text())["rows"]}
+    shipped = {None, str(SHIPPED_CHECKPOINT), str(SHIPPED_REPLAY_PRIOR_CHECKPOINT)}
+    figures = {}
+    for column in policies:
+        if column.checkpoint not in shipped:
+            continue
+        row = rows.get((TEST_SPLIT_COLUMNS.get(column.name), task))
+        if row is not None:
+            figures[column.name] = f"{row['successes']}/{row['episodes']}"
+    return figures
 
 
 def failed_policies(outcomes: dict[str, list[EpisodeOutcome]]) -> list[str]:

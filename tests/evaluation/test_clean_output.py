@@ -51,8 +51,8 @@ def test_filter_is_installed_once_on_import():
 def test_lerobot_eval_prints_no_traceback(tmp_path):
     """The real ``lerobot-eval --policy.type=demo_replay`` (it opens a LeRobot demo dataset, so LeRobot probes its
     video backend) on one push_button episode. Most of its time is a new interpreter importing LeRobot; in CI
-    test_eval_suite.py::test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo checks the output of
-    the two ``lerobot-eval`` processes it runs (``instant_policy`` and this ``demo_replay``, pick_and_lift) for the
+    test_eval_suite.py::test_the_shipped_checkpoint_succeeds_on_the_demo_task_through_make_demo checks the output of
+    the ``lerobot-eval`` processes it runs (``instant_policy`` and this ``demo_replay``, close_box) for the
     same: no traceback, and the probe's one line where no system FFmpeg is found."""
     demos = tmp_path / "demos"
     assert record_demos.main(["--task", "push_button", "--episodes", "2", "--out", str(demos),

@@ -134,10 +134,11 @@ def test_best_policy_falls_back_to_demo_replay_without_a_checkpoint(tmp_path):
     assert (policy, path) == ("demo_replay", None) and "no instant_policy checkpoint" in reason
 
 
-def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_path, capsys, monkeypatch):
+def test_the_shipped_checkpoint_succeeds_on_the_demo_task_through_make_demo(tmp_path, capsys, monkeypatch):
     """``make demo``'s path on a fresh clone (its task, the two shipped checkpoints through ``--policy.path`` beside
-    ``demo_replay``, each a real ``lerobot-eval`` process): given 2 demonstrations, the shipped checkpoint lifts the
-    object the paper's way and from the replay prior (one episode, seed 1000); a policy that failed every episode
+    ``demo_replay``, each a real ``lerobot-eval`` process): given 2 demonstrations, the shipped checkpoint closes the
+    box the paper's way and from the replay prior (one episode, seed 1000), and each column's test-split figure on the
+    task is printed beside the episodes; a policy that failed every episode
     makes the demo exit with 1. Neither ``lerobot-eval`` prints a traceback, and the ``demo_replay`` one, which opens a LeRobot
     dataset and so probes LeRobot's video backend, says the probe's one line where no system FFmpeg is found (issue
     15: ``test_clean_output.py``)."""
@@ -181,6 +182,8 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
     rows = [line.split() for line in captured.out.splitlines() if line.split()[:1] in (["0"], ["1"])]
     assert rows == [[str(index), str(1000 + index), "success", "success", "success" if success else "fail"]
                     for index, success in enumerate(replay)]
+    assert (f"test split on {demo.DEFAULT_TASK} ({demo.TEST_SPLIT_TABLE}: 3 demonstration sets x 10 episodes): "
+            f"instant_policy 12/30, {demo.REPLAY_PRIOR} 30/30, demo_replay 15/30") in captured.out
     sheet = tmp_path / f"contact_sheet_{demo.DEFAULT_TASK}.png"
     assert f"contact sheet (first and last frame of every episode): {sheet}" in captured.out
     image = plt.imread(sheet)
@@ -189,6 +192,25 @@ def test_the_shipped_checkpoint_succeeds_on_pick_and_lift_through_make_demo(tmp_
     succeeding = [side_by_side.EpisodeOutcome(1000, True, None)]
     assert demo.failed_policies({"instant_policy": failing, "demo_replay": succeeding}) == ["instant_policy"]
     assert demo.failed_policies({"do_nothing": failing, "demo_replay": succeeding}) == []
+
+
+def test_the_demo_reads_each_shipped_columns_test_split_figure_on_its_task(tmp_path):
+    """From a success table's rows: the shipped checkpoints' and the baselines' columns on the task; a checkpoint of
+    the user's own, a task the table lacks or a missing table give no figure."""
+    table = tmp_path / "table.json"
+    rows = [{"policy": "instant_policy", "task": "close_box", "successes": 12, "episodes": 30},
+            {"policy": "ip_per_object_s0125_K8", "task": "close_box", "successes": 30, "episodes": 30},
+            {"policy": "demo_replay", "task": "close_box", "successes": 15, "episodes": 30},
+            {"policy": "demo_replay", "task": "pick_and_lift", "successes": 28, "episodes": 30}]
+    table.write_text(json.dumps({"rows": rows}))
+    policies, _ = demo.policies_to_run("auto", SHIPPED_CHECKPOINT, SHIPPED_REPLAY_PRIOR_CHECKPOINT)
+    assert demo.test_split_figures("close_box", policies, table) == {
+        "instant_policy": "12/30", demo.REPLAY_PRIOR: "30/30", "demo_replay": "15/30"}
+    assert demo.test_split_figures("pick_and_lift", policies, table) == {"demo_replay": "28/30"}
+    own = [demo.DemoPolicy("instant_policy", "instant_policy", str(tmp_path / "mine"))]
+    assert demo.test_split_figures("close_box", own, table) == {}
+    assert demo.test_split_figures("close_box", policies, tmp_path / "absent.json") == {}
+    assert demo.TEST_SPLIT_TABLE.is_file()  # the checkout's table, which make demo reads
 
 
 def test_auto_demo_runs_instant_policy_beside_demo_replay(tmp_path):
