@@ -60,7 +60,8 @@ def main() -> None:
         batch = {POINTCLOUD_KEY: torch.from_numpy(observation["pointcloud"])[None].float(),
                  STATE_KEY: torch.from_numpy(observation["agent_pos"])[None].float(), "task": [args.task]}
         action = policy.select_action(batch)[0].numpy()
-        window = np.arange(max(step - args.window, 0), min(step + args.window, len(plan) - 1) + 1)
+        last = len(plan) - 1  # past the plan's end its last action holds
+        window = np.arange(min(max(step - args.window, 0), last), min(step + args.window, last) + 1)
         distances = np.linalg.norm(plan[window, :3] - observation["agent_pos"][:3], axis=1)
         nearest = int(window[np.argmin(distances)])
         rows.append({"step": step, "lag": step - nearest, "off_path_mm": round(1000 * float(distances.min()), 1),
