@@ -289,16 +289,6 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             task_context.demos = task_context.waypoint_features = task_context.weights_version = None
 
     # ------------------------------------------------------------------ training context
-    def training_context_encoder(self) -> ContextEncoder:
-        """The training context: the training bank's waypoints with the frame encodings of its dataset
-        (:class:`~.training.batches.TrainingData`)."""
-        if self.training_data is None:
-            raise RuntimeError(
-                "instant_policy training draws context demonstrations from the training dataset: build the policy "
-                "with dataset_meta (lerobot-train does) or call set_training_bank()"
-            )
-        return self.training_data.context_encoder()
-
     def set_training_bank(self, bank: ContextBank, frame_encodings: FrameEncodings | None = None) -> None:
         """Use ``bank`` for the training context (its waypoint count must be ``num_waypoints``), and
         ``frame_encodings`` of the dataset it was read from for its waypoints and the batches' frames (``index``);

@@ -232,7 +232,7 @@ def test_loss_falls_when_overfitting_a_tiny_dataset(tiny_dataset):
     assert not any(key.startswith("_training_bank") for key in policy.state_dict())
     assert all(not parameter.requires_grad for parameter in policy.network.geometry_encoder.parameters())
     # Every frame and waypoint came from the frame-encoding cache beside the dataset: nothing else was encoded.
-    encoder = policy.training_context_encoder()
+    encoder = policy.training_data.context_encoder()
     assert encoder.frame_encodings is not None and encoder.bank.points_world is None
 
 
@@ -536,7 +536,7 @@ def test_n_is_capped_so_that_no_demonstration_repeats(tiny_dataset, monkeypatch)
     policy = InstantPolicyPolicy(InstantPolicyConfig(device="cpu", min_demos=4, max_demos=5),
                                  dataset_meta=tiny_dataset.meta)
     drawn = []
-    bank = policy.training_context_encoder().bank
+    bank = policy.training_data.context_encoder().bank
     sample_context = bank.sample_context
     monkeypatch.setattr(bank, "sample_context",
                         lambda episode, n, rng: drawn.append(sample_context(episode, n, rng)) or drawn[-1])
@@ -569,7 +569,7 @@ def test_a_batch_that_carries_its_context_trains_as_the_datasets_context_does(ti
     config = InstantPolicyConfig(device="cpu", reencode_action_clouds=False, min_demos=2, max_demos=2)
     policy = InstantPolicyPolicy(config, dataset_meta=tiny_dataset.meta).train()
     batch = next(iter(torch.utils.data.DataLoader(tiny_dataset, batch_size=4, shuffle=False)))  # episode 0's frames
-    bank = policy.training_context_encoder().bank
+    bank = policy.training_data.context_encoder().bank
     monkeypatch.setattr(bank, "sample_context", lambda episode, n, rng: np.array([1, 2]))
     torch.manual_seed(3)
     dataset_loss, _ = policy.forward(batch)

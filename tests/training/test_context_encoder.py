@@ -49,7 +49,7 @@ def test_training_and_inference_take_the_same_path_to_the_same_tensors(policy, d
     """The dataset's frame encodings, the bank's clouds encoded on demand, and the same episodes handed in as
     demonstrations (the inference path) give the same demonstrations to the network."""
     episodes = np.array([[2, 0], [1, 2]])
-    from_cache = policy.training_context_encoder().demos(episodes, "cpu")
+    from_cache = policy.training_data.context_encoder().demos(episodes, "cpu")
     bank_with_clouds = ContextBank.from_dataset(REPO, dataset_root, L)
     encoded = ContextEncoder(policy.network, bank_with_clouds).demos(episodes, "cpu")
     handed_in = ContextEncoder(
@@ -64,7 +64,7 @@ def test_training_and_inference_take_the_same_path_to_the_same_tensors(policy, d
     # The policy's inference context of episodes 0 and 1, handed in, is the training context of the same episodes.
     policy.set_demonstrations(load_demonstrations(REPO, dataset_root, "lift", 2))
     task_demos = policy.task_context("lift").demos
-    training = policy.training_context_encoder().demos(np.array([[0, 1]]), "cpu")
+    training = policy.training_data.context_encoder().demos(np.array([[0, 1]]), "cpu")
     for name in ("T_world_ee", "gripper_open", "scene_positions", "scene_features"):
         torch.testing.assert_close(getattr(task_demos, name), getattr(training, name), rtol=1e-5, atol=1e-5)
 
@@ -88,6 +88,6 @@ def test_pieces_that_do_not_fit_are_refused(policy, dataset_root):
         ContextEncoder(policy.network, light)
     handed_in = ContextBank.from_demonstrations(load_demonstrations(REPO, dataset_root, "lift", 2), L)
     with pytest.raises(ValueError, match="from their dataset"):
-        ContextEncoder(policy.network, handed_in, policy.training_context_encoder().frame_encodings)
+        ContextEncoder(policy.network, handed_in, policy.training_data.context_encoder().frame_encodings)
     with pytest.raises(ValueError, match=r"shape \(B, N\)"):
         ContextEncoder(policy.network, handed_in).demos(np.array([0, 1]), "cpu")

@@ -52,7 +52,7 @@ def _fingerprint(policy: InstantPolicyPolicy) -> str:
 
 def test_cached_scene_nodes_are_the_live_encoding_of_each_frame(dataset):
     policy = _policy(dataset)
-    encodings = policy.training_context_encoder().frame_encodings
+    encodings = policy.training_data.context_encoder().frame_encodings
     assert len(encodings) == dataset.num_frames
     assert encodings.path == cache_path(dataset.root, _fingerprint(policy))
     frames = [0, 7, 13, 30, len(dataset) - 1]
@@ -81,7 +81,7 @@ def test_training_with_the_cache_computes_the_loss_of_live_encoding(dataset):
         losses[cached] = (float(loss.detach()), parts)
         # Without the cache the context encoder encodes the context episodes' clouds itself; with it, the bank was
         # read without them, so everything came from the cache.
-        encoder = policy.training_context_encoder()
+        encoder = policy.training_data.context_encoder()
         assert (encoder.bank.points_world is None) == cached
         assert (encoder.frame_encodings is not None) == cached
     assert losses[True][0] == pytest.approx(losses[False][0], rel=1e-4)
@@ -91,10 +91,10 @@ def test_training_with_the_cache_computes_the_loss_of_live_encoding(dataset):
 def test_a_cache_is_reused_and_rebuilt_when_the_dataset_or_the_encoder_changes(dataset):
     policy = _policy(dataset)
     fingerprint = _fingerprint(policy)
-    path = policy.training_context_encoder().frame_encodings.path
+    path = policy.training_data.context_encoder().frame_encodings.path
     built_at = (path / META_FILE).stat().st_mtime_ns
     # A second policy with the same encoder reuses the cache (no rebuild).
-    assert _policy(dataset).training_context_encoder().frame_encodings.path == path
+    assert _policy(dataset).training_data.context_encoder().frame_encodings.path == path
     assert (path / META_FILE).stat().st_mtime_ns == built_at
 
     # A dataset whose files changed makes the cache stale: not loaded, rebuilt in place by the next policy.
@@ -102,7 +102,7 @@ def test_a_cache_is_reused_and_rebuilt_when_the_dataset_or_the_encoder_changes(d
     meta["dataset"]["data_files"][0][1] += 1
     (path / META_FILE).write_text(json.dumps(meta))
     assert load_frame_encodings(dataset.root, fingerprint) is None
-    rebuilt = _policy(dataset).training_context_encoder().frame_encodings
+    rebuilt = _policy(dataset).training_data.context_encoder().frame_encodings
     assert rebuilt.path == path and load_frame_encodings(dataset.root, fingerprint) is not None
 
     # Other encoder weights get a cache of their own.
@@ -110,7 +110,7 @@ def test_a_cache_is_reused_and_rebuilt_when_the_dataset_or_the_encoder_changes(d
     with torch.no_grad():
         next(other.network.geometry_encoder.parameters()).add_(0.01)
     other.clear_context_caches()
-    assert other.training_context_encoder().frame_encodings.path != path
+    assert other.training_data.context_encoder().frame_encodings.path != path
     assert len(list((dataset.root / CACHE_DIR).iterdir())) == 2
 
 
@@ -141,7 +141,7 @@ def test_frame_encodings_need_a_bank_read_from_their_dataset(dataset):
     from lerobot_instant_policy.data.demonstrations import load_demonstrations
 
     policy = _policy(dataset)
-    encodings = policy.training_context_encoder().frame_encodings
+    encodings = policy.training_data.context_encoder().frame_encodings
     demonstrations = load_demonstrations(REPO, dataset.root, "lift", 3)
     handed_in = ContextBank.from_demonstrations(demonstrations, policy.config.num_waypoints)
     with pytest.raises(ValueError, match="from their dataset"):
