@@ -27,6 +27,8 @@ TEST_SPLIT_TABLE = Path("docs/results_suite_test.json")
 TEST_SPLIT_COLUMNS = {"instant_policy": "instant_policy", REPLAY_PRIOR: "ip_per_object_s0125_K8",
                       "demo_replay": "demo_replay", "do_nothing": "do_nothing"}
 POLICY_CHOICES = ("auto", "instant_policy", REPLAY_PRIOR, "demo_replay", "do_nothing")
+# the column the demo stands on, the first of these that ran: the recommended policy (README's "Which to use when")
+HEADLINE_ORDER = (REPLAY_PRIOR, "instant_policy", "demo_replay")
 
 
 @dataclass(frozen=True)
@@ -101,7 +103,12 @@ def test_split_figures(task: str, policies: list[DemoPolicy], table: Path = TEST
     return figures
 
 
-def failed_policies(outcomes: dict[str, list[EpisodeOutcome]]) -> list[str]:
-    """The policies that read demonstrations and succeeded in no episode: a demo that shows nothing."""
-    return [policy for policy, episodes in outcomes.items()
-            if policy != "do_nothing" and not any(episode.success for episode in episodes)]
+def headline_failure(outcomes: dict[str, list[EpisodeOutcome]]) -> str | None:
+    """The name of the demo's headline column when it succeeded in no episode, else ``None``: a demo that shows
+    nothing. The headline is the recommended policy among those run (:data:`HEADLINE_ORDER`); the other columns are
+    there to be compared with it, and one of them failing is what the demo's task shows (the paper's inference does
+    12/30 on ``close_box``'s test split), not a failure of the demo."""
+    headline = next((name for name in HEADLINE_ORDER if name in outcomes), None)
+    if headline is None or any(episode.success for episode in outcomes[headline]):
+        return None
+    return headline
