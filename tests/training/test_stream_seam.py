@@ -70,26 +70,25 @@ def test_lerobot_train_trains_on_the_stream_saves_loadable_checkpoints_and_resum
     assert resume_start_task(out / "checkpoints" / "000002", batch_size=2, world_size=1) == start
 
 
-def test_the_task_pool_trains_records_its_state_in_each_save_and_a_killed_run_resumes_past_its_tasks(tmp_path):
+def test_the_task_pool_trains_records_its_state_in_each_save_and_a_killed_run_resumes_past_its_tasks(tmp_path,
+                                                                                                     pool_run):
     """``--pool``: every save carries the pool's account; a run killed after its first save resumes from that save,
     its pool starting past every task the save's run had received (nothing seen before is drawn again). With
     ``--average.decay`` every save also carries the weights' moving average, which the resumed run goes on with,
-    at the saved decay, without being told again."""
-    out = tmp_path / "run"
-    pool_flags = ["--pool", "--pool.min_tasks=1", "--pool.capacity=4"]
-    run = _train(tmp_path, *POLICY_FLAGS, *pool_flags, "--average.decay=0.5", "--steps=4", f"--output_dir={out}")
-    assert run.returncode == 0, run.stderr[-3000:]
-    assert "training on the pseudo-task pool from task 0 (process 0 of 1)" in run.stdout + run.stderr
-    states = {step: json.loads((out / "checkpoints" / f"{step:06d}" / "training_state" / POOL_STATE_FILE).read_text())
-              for step in (2, 4)}
+    at the saved decay, without being told again. The run is the session's ``pool_run`` (4 steps, a save every 2)."""
+    assert "training on the pseudo-task pool from task 0 (process 0 of 1)" in (pool_run / "train.log").read_text()
+    states = {step: json.loads((pool_run / "run" / "checkpoints" / f"{step:06d}" / "training_state" /
+                                POOL_STATE_FILE).read_text()) for step in (2, 4)}
     for step, state in states.items():
         stats = state["stats"]
         assert stats["samples"] == 2 * step and stats["distinct_tasks_used"] <= stats["tasks_received"]
         assert stats["next_task"] >= stats["tasks_received"] + stats["skipped"] and stats["max_uses"] >= 1
-    shutil.rmtree(out / "checkpoints" / "000004")  # killed before its second save
+    out = tmp_path / "run"  # killed before its second save
+    shutil.copytree(pool_run / "run", out, symlinks=True, ignore=shutil.ignore_patterns("000004"))
     first_save = out / "checkpoints" / "000002"
-    resumed = _train(tmp_path, *pool_flags, f"--config_path={first_save / 'pretrained_model' / 'train_config.json'}",
-                     "--resume=true", "--steps=3")
+    resumed = _train(tmp_path, "--pool", "--pool.min_tasks=1", "--pool.capacity=4",
+                     f"--config_path={first_save / 'pretrained_model' / 'train_config.json'}", "--resume=true",
+                     f"--output_dir={out}", "--steps=3")
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     next_task = states[2]["stats"]["next_task"]
     assert f"training on the pseudo-task pool from task {next_task} (process 0 of 1)" in resumed.stdout + resumed.stderr

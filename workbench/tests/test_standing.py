@@ -518,11 +518,11 @@ def test_validation_generators_that_print_much_do_not_block(tmp_path, monkeypatc
     assert (tmp_path / "moved.log").stat().st_size == 400_000
 
 
-def test_a_compact_save_resumes_from_its_average_and_rebuilds_the_moments_before_moving(tmp_path):
-    """A real pool run's save, kept compactly (:func:`write_compact`: the average as the weights, no moments, no
-    second average), resumes under ``lerobot-ip-train --resume=true`` as the standing run stages it: the optimizer
-    starts fresh and takes its rebuild steps at learning rate 0, so the weights after them are the compact save's
-    bit for bit, and the steps after move them."""
+def test_a_compact_save_resumes_from_its_average_and_rebuilds_the_moments_before_moving(tmp_path, pool_run):
+    """A real pool run's save (the session's ``pool_run``), kept compactly (:func:`write_compact`: the average as the
+    weights, no moments, no second average), resumes under ``lerobot-ip-train --resume=true`` as the standing run
+    stages it: the optimizer starts fresh and takes its rebuild steps at learning rate 0, so the weights after them are
+    the compact save's bit for bit, and the steps after move them."""
     import os
     import subprocess
     import sys
@@ -531,27 +531,12 @@ def test_a_compact_save_resumes_from_its_average_and_rebuilds_the_moments_before
 
     from lerobot_instant_policy.training.weight_average import AVERAGE_FILE
 
-    bin_dir = Path(sys.executable).parent
-    (tmp_path / "stream.json").write_text(json.dumps({"seed": 5, "object_pool": ["pb/cube", "pb/duck"],
-                                                      "family": "full", "tasks_per_object_group": 1}))
-    common = ["--stream.config=stream.json", "--stream.samples_per_task=2", "--stream.tasks_per_render=1", "--pool",
-              "--pool.min_tasks=1", "--pool.capacity=4", "--save_freq=2", "--log_freq=1"]
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"}
-
-    def train(*flags: str) -> None:
-        done = subprocess.run([str(bin_dir / "lerobot-ip-train"), *common, *flags], capture_output=True, text=True,
-                              timeout=600, env=env, cwd=tmp_path)
-        assert done.returncode == 0, done.stderr[-3000:]
-
-    run = tmp_path / "run"
-    train("--policy.type=instant_policy", "--policy.device=cpu", "--policy.push_to_hub=false", "--policy.max_demos=2",
-          "--policy.reencode_action_clouds=false", "--num_workers=0", "--batch_size=2", "--average.decay=0.5",
-          "--steps=2", f"--output_dir={run}")
+    save = pool_run / "run" / "checkpoints" / "000002"
     compact = tmp_path / "last"
-    standing_module.write_compact(run / "checkpoints" / "000002", compact)
+    standing_module.write_compact(save, compact)
     assert not any((compact / "training_state" / name).exists() for name in ("optimizer_state.safetensors",
                                                                              AVERAGE_FILE))
-    average = load_file(run / "checkpoints" / "000002" / "training_state" / AVERAGE_FILE)
+    average = load_file(save / "training_state" / AVERAGE_FILE)
     weights = load_file(compact / "pretrained_model" / "model.safetensors")
     assert all(torch.equal(weights[name], tensor) for name, tensor in average.items())
 
@@ -560,7 +545,12 @@ def test_a_compact_save_resumes_from_its_average_and_rebuilds_the_moments_before
     config = StandingConfig(moment_rebuild_steps=2, average_decay=0.5)
     resume_flags = [flag for flag in train_command(config, staged, resumed) if flag.startswith(
         ("--config_path", "--resume", "--optimizer.", "--output_dir", "--average"))]
-    train(*resume_flags, "--steps=6")
+    command = [str(Path(sys.executable).parent / "lerobot-ip-train"), f"--stream.config={pool_run / 'stream.json'}",
+               "--stream.samples_per_task=2", "--stream.tasks_per_render=1", "--pool", "--pool.min_tasks=1",
+               "--pool.capacity=4", "--save_freq=2", "--log_freq=1", *resume_flags, "--steps=6"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=tmp_path,
+                          env={**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"})
+    assert done.returncode == 0, done.stderr[-3000:]
     after_rebuild = load_file(resumed / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors")
     moved = load_file(resumed / "checkpoints" / "000006" / "pretrained_model" / "model.safetensors")
     assert all(torch.equal(after_rebuild[name], weights[name]) for name in average)
