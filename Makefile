@@ -199,10 +199,12 @@ eval-suite: $(INSTALLED)
 
 # CI=true skips tests marked slow; the summary at the end lists every skipped test with its reason. TEST_WORKERS
 # pytest-xdist workers share the cores (tests/conftest.py gives each its share of torch threads); a test file runs in
-# one worker, so its module fixtures are built once. TEST_WORKERS=0 runs in this process.
+# one worker, so its module fixtures are built once; the files go out heaviest first by tests/durations.json
+# (conftest.py; `pytest --store-durations` rewrites it from a run). TEST_WORKERS=0 runs in this process.
 TEST_WORKERS ?= 2
 test: $(INSTALLED) gl-library
-	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(if $(filter true,$(CI)),-m "not slow",)
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder \
+		$(if $(filter true,$(CI)),-m "not slow",)
 
 clean:
 	rm -rf outputs .pytest_cache

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+# each test file's seconds in a measured run (setup, call and teardown summed), written by `pytest --store-durations`
+DURATIONS_FILE = Path(__file__).resolve().parent / "tests" / "durations.json"
 HELD_OUT_CONFIG = Path(__file__).resolve().parent / "configs" / "generate" / "val_one_layout.json"
 HELD_OUT_TASKS, HELD_OUT_DEMOS, HELD_OUT_SEED = 4, 3, 321
 # the pool run's stream: two objects and one task group, every task loading the same two meshes
@@ -20,6 +22,40 @@ POOL_RUN_FLAGS = ["--stream.samples_per_task=2", "--stream.tasks_per_render=1", 
                   "--policy.push_to_hub=false", "--policy.max_demos=2", "--policy.reencode_action_clouds=false",
                   "--num_workers=0", "--batch_size=2", "--log_freq=1", "--save_freq=2", "--average.decay=0.5",
                   "--steps=4"]
+
+
+def pytest_addoption(parser):
+    parser.addoption("--store-durations", action="store_true",
+                     help="write each test file's seconds in this run to tests/durations.json")
+
+
+def pytest_configure(config):
+    if config.getoption("store_durations") and not hasattr(config, "workerinput"):  # the controller, or no xdist
+        config.pluginmanager.register(_FileDurations(), "file-durations")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Test files heaviest first, by :data:`DURATIONS_FILE` (files it lacks last, in their own order): under
+    ``make test``'s ``--dist loadfile --no-loadscope-reorder`` the workers take the files in this order, longest
+    first, so that no worker is left alone with a long file at the end. Within a file the order stays."""
+    if DURATIONS_FILE.is_file():
+        seconds = json.loads(DURATIONS_FILE.read_text())["files"]
+        items.sort(key=lambda item: -seconds.get(item.nodeid.split("::")[0], 0.0))
+
+
+class _FileDurations:
+    """Sums each test file's reported seconds and writes them to :data:`DURATIONS_FILE` at the session's end."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    def pytest_runtest_logreport(self, report):
+        file = report.nodeid.split("::")[0]
+        self.seconds[file] = self.seconds.get(file, 0.0) + report.duration
+
+    def pytest_sessionfinish(self, session):
+        files = dict(sorted(((file, round(s, 1)) for file, s in self.seconds.items()), key=lambda kv: -kv[1]))
+        DURATIONS_FILE.write_text(json.dumps({"files": files}, indent=1) + "\n")
 
 
 def _session_shared(tmp_path_factory) -> Path:
