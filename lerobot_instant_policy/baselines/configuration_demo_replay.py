@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 
-from ..data.replay_plan import replay_plan_name
 from ..geometry.registration import RegistrationConfig
 from ..policy.features import (
     check_policy_features,
@@ -14,6 +13,7 @@ from ..policy.features import (
     contract_output_features,
     identity_normalization,
 )
+from ..replay.plan import replay_plan_name
 from .untrained import UntrainedPolicyConfigMixin
 
 
@@ -35,9 +35,9 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     translation (tabletop objects); ``registration_overlap`` is the fraction of correspondences ICP keeps;
     ``registration_points`` caps the points used in the final ICP. ``registration_per_object``: split the clouds
     into objects and let the grasp follow the grasped object and the release the other one, for tasks whose two
-    objects move independently (:func:`~..data.replay_plan.plan_replay`); ``registration_anchored``: cut every
+    objects move independently (:func:`~..replay.plan.plan_replay`); ``registration_anchored``: cut every
     demonstration into segments at gripper changes, stops and turns and let each segment follow the object it
-    approaches (:mod:`~..data.replay_segments`); both ``False``: one motion for the whole cloud.
+    approaches (:mod:`~..replay.segments`); both ``False``: one motion for the whole cloud.
     """
 
     demo_repo_id: str | None = None
@@ -75,7 +75,7 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
 
     def replay_plan(self) -> str:
         """The replay plan ``registration_per_object`` and ``registration_anchored`` name
-        (:data:`~..data.replay_plan.REPLAY_PLANS`)."""
+        (:data:`~..replay.plan.REPLAY_PLANS`)."""
         return replay_plan_name(self.registration_per_object, self.registration_anchored)
 
     def validate_features(self) -> None:

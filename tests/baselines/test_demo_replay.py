@@ -17,8 +17,8 @@ from synthetic_demos import (
 
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
-from lerobot_instant_policy.data.replay_plan import transform_pose_actions
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance, pose_from_pos_quat
+from lerobot_instant_policy.replay.plan import transform_pose_actions
 
 REPO_ID = "local/lift_demos"
 TASK = "lift"
