@@ -300,8 +300,9 @@ def test_a_policy_that_starts_from_the_replay_is_judged_beside_the_replay(held_o
     pooled = sum(mm * row["frames"] for mm, row in zip(replay_mm, result["per_task"])) / result["frames"]
     assert pooled == pytest.approx(result["replay"]["translation_mm"], abs=0.01)
     own = result["settings"][0]["translation_mm"]
+    # relative: on these one-layout tasks the replay is within a fraction of a millimetre, rounded to a micrometre
     assert result["intervals"]["vs_replay"]["value"] == pytest.approx(own / result["replay"]["translation_mm"],
-                                                                      abs=1e-3)
+                                                                      rel=5e-3)
     low, high = result["intervals"]["vs_replay"]["ci95"]
     assert low <= high
     assert all(isinstance(row["replay_wrong"], bool) for row in result["per_task"])  # each task's plan judged
