@@ -3,11 +3,14 @@ steps a replay prior reads from there.
 
 A replay plan (:class:`~.plan.ReplayPlan`) is ``G`` actions ``(G, 8)`` (world frame, the contract's layout), each
 the EE pose commanded for the next step. A robot following it executes action ``a_k`` at plan step ``k`` from the
-pose ``a_{k−1}`` commanded (step 0: from where its episode starts), so the pose it has reached at step ``k`` is
-``a_{k−1}``. :func:`plan_steps` aligns a live episode's states ``(F, 8)`` with those reached poses by dynamic time
-warping (monotone in both, every frame and step matched, the first frame to step 0 and the last to step ``G − 1``):
-an episode that executed the plan exactly is at step ``t`` at its frame ``t``; one recorded at another
-demonstrator's pace (its own start pose, path lengths and stops) is at the step where the plan has got to its state.
+pose ``a_{k−1}`` commanded, so the pose it has reached at step ``k`` is ``a_{k−1}``; at step 0 it stands at the
+plan's start, which the plan holds only as the pose its first action leads to, ``a_0``, one step on (not the live
+episode's start: a live demonstrator that starts elsewhere is matched to the plan's path as it approaches it, not
+held at step 0 while it stays near its own start). :func:`plan_steps` aligns a live episode's states ``(F, 8)``
+with those reached poses by dynamic time warping (monotone in both, every frame and step matched, the first frame
+to step 0 and the last to step ``G − 1``): an episode that executed the plan exactly is at step ``t`` at its frame
+``t``; one recorded at another demonstrator's pace (its own start pose, path lengths and stops) is at the step where
+the plan has got to its state.
 
 :func:`prior_steps` gives the steps a prior reads: at plan step ``k`` the ``T`` actions ``k … k + T − 1``, the last
 action held past the plan's end. Inference reads the plan by control step (the robot has followed the plan, so its
@@ -30,11 +33,10 @@ def plan_steps(live_state: np.ndarray, planned: np.ndarray) -> np.ndarray:
     """For every frame of a live episode, ``live_state (F, 8)``, the earliest step of the plan ``planned (G, 8)``
     (both world frame, the contract's layout) that dynamic time warping matches it to, ``(F,)`` int64,
     non-decreasing, 0 for the first frame and ``G − 1`` for the last. Step ``k`` stands for the pose the plan has
-    reached there (module docstring): ``planned[k − 1]``, and for step 0 the live start ``live_state[0]``. The cost of
-    matching frame ``i`` to step ``k`` is the distance between the EE position of ``live_state[i]`` and that reached
-    pose plus :data:`GRIPPER_MISMATCH_M` where their gripper states (thresholded at 0.5) differ."""
+    reached there (module docstring): ``planned[k − 1]``, and for step 0 ``planned[0]``. The cost of matching frame
+    ``i`` to step ``k`` is the distance between the EE position of ``live_state[i]`` and that reached pose plus :data:`GRIPPER_MISMATCH_M` where their gripper states (thresholded at 0.5) differ."""
     live_state, planned = np.asarray(live_state, dtype=np.float64), np.asarray(planned, dtype=np.float64)
-    reached = np.concatenate([live_state[:1], planned[:-1]])  # (G, 8): the pose at each plan step
+    reached = np.concatenate([planned[:1], planned[:-1]])  # (G, 8): the pose at each plan step
     cost = np.linalg.norm(live_state[:, None, :3] - reached[None, :, :3], axis=-1)
     cost += GRIPPER_MISMATCH_M * ((live_state[:, None, 7] > 0.5) != (reached[None, :, 7] > 0.5))
     frames, steps = cost.shape
