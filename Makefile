@@ -97,7 +97,7 @@ SUITE = OMP_NUM_THREADS=1 $(VENV)/bin/lerobot-ip-eval-suite --episodes 10 --demo
 	--env-arg render_size=64 $(SUITE_ARGS)
 IP = --policy instant_policy --policy-path $(CKPT)
 OPTION = --policy-arg replay_init_strength=0.125 --policy-arg inference_steps=8 --policy-arg replay_per_object=true
-PER_OBJECT = --policy demo_replay --policy-arg registration_per_object=true
+PER_OBJECT = --policy demo_replay --policy-arg replay_per_object=true
 SUITE_COLUMNS = instant_policy instant_policy-swap ip_per_object_s0125_K8 ip_per_object_s0125_K8-swap demo_replay \
 	demo_replay-swap demo_replay_per_object demo_replay_per_object-swap do_nothing
 results: results-suite

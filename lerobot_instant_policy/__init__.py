@@ -2,8 +2,9 @@
 
 Ground floor: ``contract`` (the LeRobot feature keys and the one codec of the 8-number pose + gripper vector) and
 ``geometry`` (SE(3) in numpy and torch, point sampling, registration). On it: ``data`` (LeRobot dataset I/O,
-demonstrations, waypoints, the context bank, action chunks, replay plans; pure data), ``objects`` (the object
-library and the segmented-cloud renderer), ``pseudo_demos`` (pseudo-tasks, trajectories, generation, shard merging,
+demonstrations, waypoints, the context bank, action chunks; pure data), ``objects`` (the object library and the
+segmented-cloud renderer); on them ``replay`` (a demonstration replayed in the live scene: plans, segments, the one
+timing model and the replay priors); then ``pseudo_demos`` (pseudo-tasks, trajectories, generation, shard merging,
 preview), ``model`` (geometry encoder, graph, σ / φ / ψ transformers, action diffusion; no LeRobot), ``perception``
 (depth → segmented clouds for real robots) and ``sim`` (the ``bullet_tabletop`` env). Then the policy: the LeRobot
 trio at this root (``configuration_instant_policy``, ``modeling_instant_policy``, ``processor_instant_policy``) and

@@ -27,7 +27,6 @@ from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import DiffuserSchedulerConfig
 
 from .contract import POINTCLOUD_KEY
-from .data.replay_plan import replay_plan_name
 from .geometry.gripper import GRIPPER_KEYPOINTS
 from .language.paraphrases import paraphrase_choice
 from .model.bounds import (
@@ -45,6 +44,7 @@ from .policy.features import (
     contract_output_features,
     identity_normalization,
 )
+from .replay.plan import replay_plan_name
 from .training.optimizer import InstantPolicyAdamWConfig
 
 logger = logging.getLogger(__name__)
@@ -197,16 +197,16 @@ class InstantPolicyConfig(PreTrainedConfig):
         replan_on_gripper_change: drop the queued actions after one that changes the gripper command, so the policy
             looks again once the gripper has acted (default ``True``).
         replay_init_strength: s in (0, 1] starts denoising from the demonstrated actions replayed into the live scene
-            (yaw-only ICP of the demonstrations' first clouds onto the live one, :func:`~.data.replay_plan.
+            (yaw-only ICP of the demonstrations' first clouds onto the live one, :func:`~.replay.plan.
             plan_replay`) noised to the last ⌈s·K⌉ DDIM steps, instead of from pure noise (``None``: the preset's;
             ``small`` and ``paper``: pure noise, the paper's; ``refined``: 0.25).
         replay_per_object: plan that replay per object (the grasp follows the grasped object, the release the other
             one) where two objects move independently; in training to refine, the priors too (``None``: the
             preset's, ``True`` for ``refined``, else ``False``).
         replay_anchored: plan that replay per segment instead, each segment following the object it approaches
-            (:mod:`~.data.replay_segments`); excludes ``replay_per_object`` (default ``False``).
+            (:mod:`~.replay.segments`); excludes ``replay_per_object`` (default ``False``).
         refine_fraction: the share of training rows whose noised sample starts from the row's replay prior
-            (``observation.replay_prior``, :mod:`.pseudo_demos.replay_priors`, which the pseudo-task stream and pool
+            (``observation.replay_prior``, :mod:`.replay.priors`, which the pseudo-task stream and pool
             supply when this is positive) instead of its clean actions, the target staying the clean actions: the
             network learns to correct the replay it starts from at inference. Every other row keeps the paper's
             loss on the same weights (``None``: the preset's; 0 for ``small`` and ``paper``, 0.5 for ``refined``).
@@ -399,7 +399,7 @@ class InstantPolicyConfig(PreTrainedConfig):
             raise ValueError(f"encoder_weights must name a .safetensors file, got {self.encoder_weights!r}")
 
     def replay_plan(self) -> str:
-        """The replay plan ``replay_per_object`` and ``replay_anchored`` name (:data:`~.data.replay_plan.REPLAY_PLANS`)."""
+        """The replay plan ``replay_per_object`` and ``replay_anchored`` name (:data:`~.replay.plan.REPLAY_PLANS`)."""
         return replay_plan_name(self.replay_per_object, self.replay_anchored)
 
     @property

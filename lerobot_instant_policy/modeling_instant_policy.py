@@ -37,12 +37,13 @@ from .contract import (
 )
 from .data.context_bank import ContextBank
 from .data.demonstrations import Demonstration, DemonstrationSource, batch_task_names
-from .data.replay_plan import REPLAY_REGISTRATION, ReplayPlan, plan_replay
 from .geometry.rigid_torch import compose
 from .language.task_language import TaskLanguage
 from .model.bounds import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, check_range
 from .model.instant_policy_network import DemoTensors, InstantPolicyContext, InstantPolicyNetwork
 from .model.occupancy import load_encoder_weights
+from .replay.plan import ReplayPlan
+from .replay.priors import plan_onto_live, replay_priors
 from .training.batches import TrainingData, planned_in_ee_frame, training_batch
 from .training.context_encoder import ContextEncoder
 from .training.frame_encodings import FrameEncodings
@@ -240,16 +241,18 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         """The denoising start of ``config.replay_init_strength``: the diffusion variable ``(B, T, 7)`` of each row's
         replay plan at the episode's current step, in the row's current EE frame.
 
-        The plans (:func:`~.data.replay_plan.plan_replay` of each row's task demonstrations onto its cloud
+        The plans (:func:`~.replay.priors.plan_onto_live` of each row's task demonstrations onto its cloud
         ``points_world (B, P, 3)``) are made at the episode's first prediction and kept until :meth:`reset`;
-        ``T_world_ee (B, 4, 4)`` is the current EE pose. Planned action ``step + j`` is the guess for action ``j``."""
+        ``T_world_ee (B, 4, 4)`` is the current EE pose. The robot has followed the plan, so its control step is its
+        plan step: the guess for action ``j`` is planned action ``step + j`` (:func:`~.replay.priors.replay_priors`)."""
         if self._replay_plans is None or len(self._replay_plans) != len(tasks):
             clouds = points_world.detach().cpu().numpy()
             self._replay_plans = [
-                plan_replay(task, self._demonstrations.get(task), cloud, REPLAY_REGISTRATION, self.config.replay_plan())
+                plan_onto_live(task, self._demonstrations.get(task), cloud, self.config.replay_plan())
                 for task, cloud in zip(tasks, clouds, strict=True)
             ]
-        planned = np.stack([plan.actions_from(self._episode_step, self.config.horizon) for plan in self._replay_plans])
+        step = np.array([self._episode_step])
+        planned = np.concatenate([replay_priors(plan, step, self.config.horizon) for plan in self._replay_plans])
         return self._planned_variable("the replay plan", torch.from_numpy(planned), T_world_ee)
 
     # ------------------------------------------------------------------ checkpoints

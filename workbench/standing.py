@@ -57,6 +57,7 @@ from safetensors.torch import save_file
 
 from lerobot_instant_policy.evaluation.action_error import PAIRED_KEYS, ActionErrorError, paired_ratio_difference
 from lerobot_instant_policy.evaluation.manifest import checkpoint_fingerprint
+from lerobot_instant_policy.replay.timing import TIMING_MODEL
 from lerobot_instant_policy.training.weight_average import AVERAGE_FILE, write_averaged_model
 
 PROG = "python -m workbench.cli.standing"
@@ -345,9 +346,12 @@ def validation_record(results: dict) -> dict:
 
 def validation_key(config: StandingConfig) -> dict:
     """What a validation result depends on besides the checkpoint: the sets' presets (SHA-256), their size, the
-    setting, the device and, where given, the replay start."""
+    setting, the device and, where given, the replay start with the timing model its priors are read by
+    (``replay_timing``: a result read with another timing is validated again)."""
     replay = {name: getattr(config, name) for name in REPLAY_OPTIONS
               if getattr(config, name) is not None}
+    if config.replay_init_strength is not None:
+        replay["replay_timing"] = TIMING_MODEL
     return {"presets_sha256": {name: hashlib.sha256(Path(preset).read_bytes()).hexdigest()
                                for name, preset in VALIDATION_CONFIGS.items()},
             "val_tasks": config.val_tasks, "val_frames_per_task": config.val_frames_per_task,

@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 
-from ..data.replay_plan import replay_plan_name
 from ..geometry.registration import RegistrationConfig
 from ..policy.features import (
     check_policy_features,
@@ -14,6 +13,7 @@ from ..policy.features import (
     contract_output_features,
     identity_normalization,
 )
+from ..replay.plan import replay_plan_name
 from .untrained import UntrainedPolicyConfigMixin
 
 
@@ -33,11 +33,13 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
 
     Registration: ``registration_yaw_only`` restricts the estimated motion to a yaw about world z plus a
     translation (tabletop objects); ``registration_overlap`` is the fraction of correspondences ICP keeps;
-    ``registration_points`` caps the points used in the final ICP. ``registration_per_object``: split the clouds
-    into objects and let the grasp follow the grasped object and the release the other one, for tasks whose two
-    objects move independently (:func:`~..data.replay_plan.plan_replay`); ``registration_anchored``: cut every
-    demonstration into segments at gripper changes, stops and turns and let each segment follow the object it
-    approaches (:mod:`~..data.replay_segments`); both ``False``: one motion for the whole cloud.
+    ``registration_points`` caps the points used in the final ICP.
+
+    Plan (the options of ``instant_policy``'s replay, named alike): ``replay_per_object`` splits the clouds into
+    objects and lets the grasp follow the grasped object and the release the other one, for tasks whose two objects
+    move independently (:func:`~..replay.plan.plan_replay`); ``replay_anchored`` cuts every demonstration into
+    segments at gripper changes, stops and turns and lets each segment follow the object it approaches
+    (:mod:`~..replay.segments`); both ``False``: one motion for the whole cloud.
     """
 
     demo_repo_id: str | None = None
@@ -47,8 +49,8 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     registration_yaw_only: bool = True
     registration_overlap: float = 0.8
     registration_points: int = 1024
-    registration_per_object: bool = False
-    registration_anchored: bool = False
+    replay_per_object: bool = False
+    replay_anchored: bool = False
 
     push_to_hub: bool = False
 
@@ -74,9 +76,8 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
         )
 
     def replay_plan(self) -> str:
-        """The replay plan ``registration_per_object`` and ``registration_anchored`` name
-        (:data:`~..data.replay_plan.REPLAY_PLANS`)."""
-        return replay_plan_name(self.registration_per_object, self.registration_anchored)
+        """The replay plan ``replay_per_object`` and ``replay_anchored`` name (:data:`~..replay.plan.REPLAY_PLANS`)."""
+        return replay_plan_name(self.replay_per_object, self.replay_anchored)
 
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)`` and writes ``action (8,)``."""

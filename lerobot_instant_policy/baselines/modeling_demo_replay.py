@@ -2,8 +2,9 @@
 
 At the first ``select_action`` after ``reset()``, for every batch element: load (once per task) the
 demonstrations of its task and plan the replay of the one that fits the current cloud best
-(:func:`~..data.replay_plan.plan_replay`). Call ``k`` returns planned action ``k``; after the last one the last action
-is repeated.
+(:func:`~..replay.plan.plan_replay`). Call ``k`` returns planned action ``k``, the plan read by control step as
+``instant_policy`` reads its replay (:func:`~..replay.priors.replay_priors`); after the last one the last action is
+repeated.
 """
 
 import logging
@@ -15,7 +16,8 @@ from torch import Tensor
 
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, DemonstrationSource
-from ..data.replay_plan import ReplayPlan, plan_replay
+from ..replay.plan import ReplayPlan, plan_replay
+from ..replay.priors import replay_priors
 from .configuration_demo_replay import DemoReplayConfig
 from .untrained import ParameterFreePolicyMixin
 
@@ -64,20 +66,21 @@ class DemoReplayPolicy(ParameterFreePolicyMixin, PreTrainedPolicy):
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """The remaining planned actions ``(B, S, 8)`` from the current step (the last action repeated to align)."""
         self._ensure_plans(batch)
-        remaining = max(len(plan.actions) for plan in self._plans) - self._step
-        steps = [self._action_at(self._step + offset) for offset in range(max(1, remaining))]
-        return torch.from_numpy(np.stack(steps, axis=1)).to(batch[STATE_KEY].device)
+        remaining = max(1, max(len(plan.actions) for plan in self._plans) - self._step)
+        return torch.from_numpy(self._actions_from(remaining)).to(batch[STATE_KEY].device)
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """Action ``(B, 8)`` for the current step: the plan's action at this step (absolute EE pose + gripper)."""
         self._ensure_plans(batch)
-        action = self._action_at(self._step)
+        action = self._actions_from(1)[:, 0]
         self._step += 1
         return torch.from_numpy(action).to(batch[STATE_KEY].device)
 
-    def _action_at(self, step: int) -> np.ndarray:
-        return np.stack([plan.actions_from(step, 1)[0] for plan in self._plans]).astype(np.float32)
+    def _actions_from(self, count: int) -> np.ndarray:
+        """``(B, count, 8)``: each plan's actions from the current step on."""
+        step = np.array([self._step])
+        return np.concatenate([replay_priors(plan, step, count) for plan in self._plans])
 
     def _ensure_plans(self, batch: dict[str, Tensor]) -> None:
         if self._plans is not None:

@@ -57,13 +57,14 @@ import torch
 
 from ..contract import POINTCLOUD_KEY, STATE_KEY
 from ..data.demonstrations import Demonstration, episodes_by_task, open_demo_dataset, read_demonstration
-from ..data.replay_plan import ReplayPlan
-from ..data.replay_segments import plan_is_wrong
 from ..modeling_instant_policy import InstantPolicyPolicy
+from ..replay.plan import ReplayPlan
+from ..replay.priors import plan_onto_live, replay_priors
+from ..replay.segments import plan_is_wrong
+from ..replay.timing import plan_steps
 from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
-from .replay_priors import plan_onto_live, replay_priors
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
 PHASES = ("first_third", "middle_third", "last_third")
@@ -106,23 +107,25 @@ class HeldOutTask:
 
     def replay_plan(self, num_demos: int, plan: str) -> ReplayPlan:
         """The ``plan`` replay of the first ``num_demos`` demonstrations onto the live episode's first cloud
-        (:func:`.replay_priors.plan_onto_live`), planned once per setting."""
+        (:func:`~..replay.priors.plan_onto_live`), planned once per setting."""
         key = (num_demos, plan)
         if key not in self._plans:
-            self._plans[key] = plan_onto_live(self.demos[:num_demos], self.live.points_world[0], plan)
+            self._plans[key] = plan_onto_live(self.task, self.demos[:num_demos], self.live.points_world[0], plan)
         return self._plans[key]
 
     def replay_priors(self, num_demos: int, horizon: int, plan: str) -> np.ndarray:
-        """``(frames, T, 8)``: the replay prior of every frame from :meth:`replay_plan`
-        (:func:`.replay_priors.replay_priors`), computed once per setting."""
+        """``(frames, T, 8)``: the replay prior of every frame from :meth:`replay_plan`, read at the plan step the
+        live episode has reached there (:func:`~..replay.timing.plan_steps` on its states,
+        :func:`~..replay.priors.replay_priors`), computed once per setting."""
         key = (num_demos, horizon, plan)
         if key not in self._priors:
-            self._priors[key] = replay_priors(self.replay_plan(num_demos, plan), self.live.state,
-                                              [frame.t for frame in self.frames], horizon)
+            planned = self.replay_plan(num_demos, plan)
+            steps = plan_steps(self.live.state, planned.actions)[[frame.t for frame in self.frames]]
+            self._priors[key] = replay_priors(planned, steps, horizon)
         return self._priors[key]
 
     def replay_is_wrong(self, num_demos: int, plan: str) -> bool:
-        """Whether :meth:`replay_plan` is wrong against the live episode (:func:`~..data.replay_segments.
+        """Whether :meth:`replay_plan` is wrong against the live episode (:func:`~..replay.segments.
         plan_is_wrong`)."""
         return plan_is_wrong(self.replay_plan(num_demos, plan).actions, self.live.action)
 
@@ -524,7 +527,7 @@ def references(probe: Probe, own: dict, untrained: bool = True) -> dict:
 
 def replay_split(per_task: list[dict]) -> dict:
     """The tasks whose replay plan is right and those whose plan is wrong (each row's ``replay_wrong``,
-    :func:`~..data.replay_segments.plan_is_wrong` against the live demonstration), apart: for each, its
+    :func:`~..replay.segments.plan_is_wrong` against the live demonstration), apart: for each, its
     ``tasks`` and, where it has two or more, the ratios over holding still of the policy (``vs_holding_still``)
     and of the replay (``replay_vs_holding_still``) and the policy over the replay (``vs_replay``), each
     ``{"value", "ci95"}`` over that group's tasks. A corrector should keep a right start (``vs_replay`` near 1 or

@@ -3,20 +3,20 @@
 
 A demonstration recorded in a scene is that scene's ground truth (the suite's scripted demonstrator, MetaWorld's
 expert, a pseudo-task's live demonstration). :func:`plan_error` plans the replay of context demonstrations onto the
-live demonstration's first cloud (:func:`~..data.replay_plan.plan_replay`, one of
-:data:`~..data.replay_plan.REPLAY_PLANS`) and measures it at the live demonstration's bottleneck poses, the ends of
-its segments (:func:`~..data.replay_segments.segment_ends`), where a wrong plan fails a task:
+live demonstration's first cloud as inference does (:func:`~..replay.priors.plan_onto_live`, one of
+:data:`~..replay.plan.REPLAY_PLANS`) and measures it at the live demonstration's bottleneck poses, the ends of its
+segments (:func:`~..replay.segments.segment_ends`), where a wrong plan fails a task:
 
 * a gripper change (``"gripper"``) is matched to the plan's gripper change of the same order and kind (the k-th
   close to the k-th close); a live change the plan lacks counts as a ``missed`` gripper change;
-* a stop, a turn (``"waypoint"``) and the last action (``"end"``) are matched to the planned step that dynamic time
-  warping aligns with the live action (:func:`~.replay_priors.plan_steps` on the live actions): the plan's pace is
-  not an error.
+* a stop, a turn (``"waypoint"``) and the last action (``"end"``) are matched to the planned action of the plan
+  step the live demonstration has reached at that frame (:func:`~..replay.timing.plan_steps` on its states): the
+  plan's pace is not an error.
 
 Each bottleneck gives the translation (m) and rotation (rad) between the planned and the demonstrated commanded EE
 pose; the rotation is the smaller of the two a parallel gripper cannot tell apart (turned half a turn about its
 approach axis, EE z, it grasps alike). :func:`error_quantiles` pools them into the median and 90th percentile per kind,
-and counts the wrong plans (:func:`~..data.replay_segments.plan_is_wrong`: off by 30 mm or more at a gripper change
+and counts the wrong plans (:func:`~..replay.segments.plan_is_wrong`: off by 30 mm or more at a gripper change
 or the end, or missing a gripper change), the criterion the stream also judges its training priors by.
 """
 
@@ -28,10 +28,10 @@ import numpy as np
 
 from ..contract import poses_from_vectors
 from ..data.demonstrations import Demonstration
-from ..data.replay_plan import REPLAY_REGISTRATION, plan_replay
-from ..data.replay_segments import gripper_change_kinds, plan_is_wrong, segment_ends
 from ..geometry.se3 import pose_distance, rotation_angle
-from .replay_priors import plan_steps
+from ..replay.priors import plan_onto_live
+from ..replay.segments import gripper_change_kinds, plan_is_wrong, segment_ends
+from ..replay.timing import plan_steps
 
 BOTTLENECK_KINDS = ("gripper", "waypoint", "end")
 HALF_TURN_ABOUT_Z = np.diag([-1.0, -1.0, 1.0])  # the parallel gripper's symmetry, in the EE frame
@@ -40,13 +40,13 @@ HALF_TURN_ABOUT_Z = np.diag([-1.0, -1.0, 1.0])  # the parallel gripper's symmetr
 def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str) -> dict:
     """The error of the ``plan`` replay of ``context`` in ``live``'s scene at ``live``'s bottleneck poses (module
     docstring): ``{"bottlenecks": [{"frame", "kind", "translation_m", "rotation_rad"}, ...], "missed": int,
-    "wrong": bool, "demo_index": int}`` (``wrong``: :func:`~..data.replay_segments.plan_is_wrong`; ``demo_index``:
+    "wrong": bool, "demo_index": int}`` (``wrong``: :func:`~..replay.segments.plan_is_wrong`; ``demo_index``:
     the context demonstration the plan replays)."""
-    replay = plan_replay(live.task, list(context), live.points_world[0], REPLAY_REGISTRATION, plan)
+    replay = plan_onto_live(live.task, list(context), live.points_world[0], plan)
     planned = replay.actions.astype(np.float64)
     live_action = live.action.astype(np.float64)
     ends = segment_ends(live_action)
-    aligned = plan_steps(live_action, planned)
+    aligned = plan_steps(live.state, planned)
     live_changes = gripper_change_kinds(live_action)
     plan_changes = gripper_change_kinds(planned)
     rows, missed = [], 0

@@ -33,11 +33,12 @@ A sample (a dict of tensors on ``device``, float32 unless noted), for a live fra
   ``observation.context.gripper_open (N, L)``: the context demonstrations' waypoints, world frame;
 - ``observation.context.id`` (int64 scalar): the task index; rows with one id share their context;
 - with ``StreamConfig.replay_priors``, ``observation.replay_prior (T, 8)``: the replay prior of actions
-  ``t … t + T − 1`` (:mod:`.replay_priors`), world frame, and ``observation.replay_prior_kept`` (bool): False for a
-  task whose plan is wrong against its live demonstration and is not among the wrong ones kept
+  ``t … t + T − 1`` (:func:`~..replay.priors.replay_prior_actions`: the plan's actions from the plan step the live
+  demonstration has reached at ``t``), world frame, and ``observation.replay_prior_kept`` (bool): False for a task
+  whose plan is wrong against its live demonstration and is not among the wrong ones kept
   (``StreamConfig.wrong_prior_keep``, drawn per task from the stream ``(seed, i, 6)``); with
-  ``StreamConfig.prior_time_shift`` each frame's prior read up to that many frames early or late (drawn per frame,
-  uniformly, from ``(seed, i, 7)``).
+  ``StreamConfig.prior_time_shift`` each frame's prior read up to that many plan steps early or late (drawn per
+  frame, uniformly, from ``(seed, i, 7)``).
 """
 
 from __future__ import annotations
@@ -65,11 +66,11 @@ from ..contract import (
 )
 from ..data.context_bank import waypoint_frames
 from ..data.demonstrations import DemonstrationError
-from ..data.replay_plan import REPLAY_PLANS
 from ..objects.splatting import DEFAULT_SURFACE_SAMPLES, SplatConfig, SplatRenderer, resample_visible
+from ..replay.plan import REPLAY_PLANS, ReplaySource
+from ..replay.priors import replay_prior_actions
 from .generation import GenerationConfig, PlannedTask, plan_task
 from .replay import GenerationError, splat_inputs
-from .replay_priors import replay_prior_actions
 
 _LIVE_STREAM = 4  # the live frames of task i are drawn from the random stream (seed, i, 4)
 _RESAMPLE_STREAM = 5  # and its clouds resampled ("fpsample") from (seed, i, 5)
@@ -92,12 +93,13 @@ class StreamConfig:
     cloud). Splatting: ``surface_samples`` per object, ``zbuffer_resolution`` ``(w, h)``, ``splat_radius`` (pixels)
     and ``depth_tolerance`` (m), as :class:`~..objects.splatting.SplatConfig`; ``resampling`` one of
     ``RESAMPLINGS`` (see the module docstring). ``replay_priors``: each sample also carries the live frame's replay
-    prior (:mod:`.replay_priors`, the live demonstration's first cloud rendered for it, one cloud more per task),
-    planned as ``replay_plan`` names (one of :data:`~..data.replay_plan.REPLAY_PLANS`); ``wrong_prior_keep``: the
-    probability that a task whose plan is wrong keeps its prior for training (1: all kept; below 1 brings the share
-    of wrong priors down towards the share of wrong replays a policy meets, module docstring);
-    ``prior_time_shift``: the largest timing error of a prior, in frames (each live frame's prior is read that many
-    frames early or late at most, :mod:`.replay_priors`; 0: on time).
+    prior (:func:`~..replay.priors.replay_prior_actions`, the live demonstration's first cloud rendered for it, one
+    cloud more per task), planned as ``replay_plan`` names (one of :data:`~..replay.plan.REPLAY_PLANS`);
+    ``wrong_prior_keep``: the probability that a task whose plan is wrong keeps its prior for training (1: all kept;
+    below 1 brings the share of wrong priors down towards the share of wrong replays a policy meets, module
+    docstring);
+    ``prior_time_shift``: the largest timing error of a prior, in plan steps (each live frame's prior is read that
+    many steps early or late at most, :mod:`~..replay.timing`; 0: on time).
     """
 
     generation: GenerationConfig = field(default_factory=GenerationConfig)
@@ -195,7 +197,7 @@ def check_place(rank: int, world_size: int, start_task: int) -> None:
 class RenderedTask:
     """One planned task's rendered frames: ``clouds (N·L + S, P, 3)`` world frame, on the stream's device, its ``N · L``
     context waypoints (demonstration-major) then its ``S`` live frames; with ``StreamConfig.replay_priors`` the live
-    frames' replay priors ``replay_prior (S, T, 8)`` (:mod:`.replay_priors`), else None, and whether training may
+    frames' replay priors ``replay_prior (S, T, 8)`` (:mod:`~..replay.priors`), else None, and whether training may
     start from them (``replay_prior_kept``, module docstring)."""
 
     frames: _TaskFrames
@@ -316,16 +318,17 @@ class PseudoTaskStream(torch.utils.data.IterableDataset):
     def _with_replay_prior(self, frames: _TaskFrames, clouds: torch.Tensor) -> RenderedTask:
         """The rendered task of ``clouds`` (its frames, then the live demonstration's first cloud) with its replay
         prior, planned from the first context demonstration's first waypoint cloud (every demonstration's frame 0 is
-        its first waypoint) onto that first cloud, each frame's read off by up to ``prior_time_shift`` frames; a wrong
-        one kept with probability ``wrong_prior_keep``."""
+        its first waypoint) onto that first cloud, each frame's read off by up to ``prior_time_shift`` plan steps; a
+        wrong one kept with probability ``wrong_prior_keep``."""
         task = RenderedTask(frames, clouds[:-1])
         context_first = task.context_clouds[0, 0].cpu().numpy()
         shift, shifts = self.config.prior_time_shift, None
         if shift:
             timing = np.random.default_rng([self.config.generation.seed, task.task_index, _PRIOR_TIMING_STREAM])
             shifts = timing.integers(-shift, shift + 1, size=len(frames.live))
-        prior = replay_prior_actions(frames.planned, context_first, clouds[-1].cpu().numpy(), frames.live,
-                                     self.config.horizon, self.config.replay_plan, shifts)
+        first, live = frames.planned.demos[0], frames.planned.demos[-1]
+        prior = replay_prior_actions(ReplaySource(context_first, first.action), clouds[-1].cpu().numpy(), live.state,
+                                     live.action, frames.live, self.config.horizon, self.config.replay_plan, shifts)
         task.replay_prior = prior.actions
         if prior.wrong:
             draw = np.random.default_rng([self.config.generation.seed, task.task_index, _PRIOR_STREAM]).random()

@@ -17,8 +17,8 @@ from synthetic_demos import (
 
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import DemonstrationError
-from lerobot_instant_policy.data.replay_plan import transform_pose_actions
 from lerobot_instant_policy.geometry.se3 import make_pose, pose_distance, pose_from_pos_quat
+from lerobot_instant_policy.replay.plan import transform_pose_actions
 
 REPO_ID = "local/lift_demos"
 TASK = "lift"
@@ -72,6 +72,21 @@ def test_factory_resolves_the_registered_policy():
     assert config.push_to_hub is False and config.num_demos == 2
     with pytest.raises(ValueError, match="num_demos must be at least 1"):
         make_policy_config("demo_replay", num_demos=0)
+
+
+def test_the_plan_options_are_named_as_instant_policys():
+    """``replay_per_object`` / ``replay_anchored`` choose the plan as ``InstantPolicyConfig``'s fields of those names
+    do; the two exclude each other."""
+    from lerobot.policies.factory import make_policy_config
+
+    from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+
+    for per_object, anchored in ((False, False), (True, False), (False, True)):
+        options = {"replay_per_object": per_object, "replay_anchored": anchored}
+        assert (make_policy_config("demo_replay", **options).replay_plan()
+                == InstantPolicyConfig(device="cpu", **options).replay_plan())
+    with pytest.raises(ValueError, match="not both"):
+        make_policy_config("demo_replay", replay_per_object=True, replay_anchored=True)
 
 
 def test_make_policy_with_dataset_metadata(demo_root):

@@ -281,25 +281,6 @@ def test_paired_ratio_difference_resamples_tasks_jointly_and_refuses_other_frame
             ae.paired_ratio_difference(a, other)
 
 
-def test_plan_steps_follow_a_plan_at_another_pace():
-    """A live episode that moves along the plan's path at half its pace is matched frame 2i → step i; the plan itself
-    is matched to itself; gripper states keep a pause before the grasp on the right side of it."""
-    from lerobot_instant_policy.evaluation.replay_priors import plan_steps
-
-    path = np.zeros((20, 8))
-    path[:, 0] = np.linspace(0.0, 0.19, 20)
-    path[:, 6] = 1.0
-    path[:, 7] = (np.arange(20) < 12).astype(float)
-    assert np.array_equal(plan_steps(path, path), np.arange(20))
-    slow = np.repeat(path, 2, axis=0)
-    matched = plan_steps(slow, path)
-    assert np.array_equal(matched, np.arange(40) // 2)
-    still = np.concatenate([path[:12], np.repeat(path[11:12], 5, axis=0), path[12:]])  # a pause before closing
-    matched = plan_steps(still, path)
-    assert matched[0] == 0 and matched[-1] == 19 and np.all(np.diff(matched) >= 0)
-    assert np.all(matched[12:17] == 11)
-
-
 def test_a_policy_that_starts_from_the_replay_is_judged_beside_the_replay(held_out_root, monkeypatch):
     """With a replay strength every prediction (own and swapped) is handed the frame's replay prior, planned from
     the setting's N demonstrations; the result holds the replay's own errors per task and the ratio own / replay
@@ -319,8 +300,9 @@ def test_a_policy_that_starts_from_the_replay_is_judged_beside_the_replay(held_o
     pooled = sum(mm * row["frames"] for mm, row in zip(replay_mm, result["per_task"])) / result["frames"]
     assert pooled == pytest.approx(result["replay"]["translation_mm"], abs=0.01)
     own = result["settings"][0]["translation_mm"]
+    # relative: on these one-layout tasks the replay is within a fraction of a millimetre, rounded to a micrometre
     assert result["intervals"]["vs_replay"]["value"] == pytest.approx(own / result["replay"]["translation_mm"],
-                                                                      abs=1e-3)
+                                                                      rel=5e-3)
     low, high = result["intervals"]["vs_replay"]["ci95"]
     assert low <= high
     assert all(isinstance(row["replay_wrong"], bool) for row in result["per_task"])  # each task's plan judged

@@ -300,7 +300,7 @@ def test_manifests_written_before_the_conditions_are_read_and_what_they_lack_is_
     cells = two_cells([True, False], [True, True])
     replay = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1), cells)
     per_object = fake_suite(SuiteSettings(out=tmp_path, episodes=2, demo_sets=1, run_name="per_object",
-                                          policy_args=("--policy.registration_per_object=true",)), cells)
+                                          policy_args=("--policy.replay_per_object=true",)), cells)
     assert eval_table([f"demo_replay={replay}", f"per_object={per_object}", "--allow-difference", "policy_options",
                        "--out", str(tmp_path / "new")]) == 0
     manifests = json.loads((tmp_path / "new.manifest.json").read_text())
@@ -427,7 +427,7 @@ def test_a_run_that_does_not_match_the_column_it_amends_is_refused(fake_suite, t
     assert code == 2 and "open_drawer, set 0:" in error and "ran seeds 2000…2001, column 'demo_replay' 1000…1001" in error
     code, error = amend(dataclasses.replace(base, batch_size=1, run_name="batch"))
     assert code == 2 and "batch_size: 2 in the column, 1 in the run" in error and "--allow-difference" not in error
-    options = dataclasses.replace(base, policy_args=("--policy.registration_per_object=true",), run_name="options")
+    options = dataclasses.replace(base, policy_args=("--policy.replay_per_object=true",), run_name="options")
     code, error = amend(options)
     assert code == 2 and "policy_args" in error and "--allow-difference policy_options" in error
     assert amend(options, "--allow-difference", "policy_options")[0] == 0

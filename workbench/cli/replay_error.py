@@ -28,8 +28,8 @@ from collections import defaultdict
 from pathlib import Path
 
 from lerobot_instant_policy.data.demonstrations import episodes_by_task, open_demo_dataset, read_demonstration
-from lerobot_instant_policy.data.replay_plan import REPLAY_PLANS
 from lerobot_instant_policy.evaluation.replay_error import error_quantiles, plan_error
+from lerobot_instant_policy.replay.plan import REPLAY_PLANS
 
 PROG = "python -m workbench.cli.replay_error"
 SET_FOLDER = re.compile(r"^(?P<task>.+)-n(?P<n>\d+)-s(?P<seed>\d+)$")

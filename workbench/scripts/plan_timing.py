@@ -1,10 +1,11 @@
 """How far a policy run from the replay prior falls behind or runs ahead of the plan it reads by control step.
 
 For one ``bullet_tabletop`` task, demonstration set and episode seed: the replay plan is made at the first observation
-as the policy makes it (``data.replay_plan.plan_replay`` of the demonstrations onto the first cloud); at control step
+as the policy makes it (``replay.priors.plan_onto_live`` of the demonstrations onto the first cloud); at control step
 ``k`` the plan hands the network its actions from ``k`` on. The EE's **lag** at step ``k`` is ``k − j``, with ``j`` the
-planned action nearest the EE among steps ``k − window … k + window`` (> 0: behind the plan). Prints JSON: success,
-steps, and the lag's median, 90th percentile of its size and extremes, then every ``--every``-th step.
+plan step among ``k − window … k + window`` whose reached pose is nearest the EE (the pose the plan's action ``j − 1``
+commands, step 0 the episode's start: ``lerobot_instant_policy.replay.timing``'s model; > 0: behind the plan). Prints
+JSON: success, steps, and the lag's median, 90th percentile of its size and extremes, then every ``--every``-th step.
 
     python workbench/scripts/plan_timing.py stack_blocks CHECKPOINT outputs/results/suite_dev/demos/stack_blocks-n2-s0 \
         --seed 1000 --strength 0.25 --plan anchored
@@ -21,8 +22,8 @@ import torch
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
-from lerobot_instant_policy.data.replay_plan import REPLAY_REGISTRATION, plan_replay
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.replay.priors import plan_onto_live
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
 
 
@@ -53,8 +54,8 @@ def main() -> None:
     demonstrations = load_demonstrations(config.demo_repo_id, args.demos, args.task, args.num_demos)
     env = BulletTabletopEnv(args.task, BulletTabletopConfig(render_size=(64, 64)))
     observation, _ = env.reset(seed=args.seed)
-    plan = plan_replay(args.task, demonstrations, observation["pointcloud"], REPLAY_REGISTRATION,
-                       config.replay_plan()).actions
+    plan = plan_onto_live(args.task, demonstrations, observation["pointcloud"], config.replay_plan()).actions
+    reached = np.concatenate([observation["agent_pos"][None, :3], plan[:-1, :3]])  # (G, 3): the pose at each step
     rows, info = [], {}
     for step in range(env._max_episode_steps):
         batch = {POINTCLOUD_KEY: torch.from_numpy(observation["pointcloud"])[None].float(),
@@ -62,7 +63,7 @@ def main() -> None:
         action = policy.select_action(batch)[0].numpy()
         last = len(plan) - 1  # past the plan's end its last action holds
         window = np.arange(min(max(step - args.window, 0), last), min(step + args.window, last) + 1)
-        distances = np.linalg.norm(plan[window, :3] - observation["agent_pos"][:3], axis=1)
+        distances = np.linalg.norm(reached[window] - observation["agent_pos"][:3], axis=1)
         nearest = int(window[np.argmin(distances)])
         rows.append({"step": step, "lag": step - nearest, "off_path_mm": round(1000 * float(distances.min()), 1),
                      "gripper": float(action[7])})

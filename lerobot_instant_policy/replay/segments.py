@@ -1,18 +1,18 @@
 """A demonstration's actions cut into segments, each anchored to what it approaches: the structure of the anchored
-replay plan (:func:`~.replay_plan.plan_replay` with ``plan="anchored"``).
+replay plan (:func:`~.plan.plan_replay` with ``plan="anchored"``).
 
 A segment ends where the demonstrator acted or changed course, read off the commanded actions ``(F, 8)`` (the
 contract's layout: xyz, quaternion xyzw, gripper):
 
 * at a gripper change: the first action with the new command (the pose where the gripper closed or opened);
-* where the EE nearly stops (:class:`~.waypoints.StopCriterion`'s thresholds, on the commanded poses): the run's
+* where the EE nearly stops (:class:`~..data.waypoints.StopCriterion`'s thresholds, on the commanded poses): the run's
   first action;
 * where the path turns: the vertices of the Ramer-Douglas-Peucker simplification of the positions between the
   other ends, at ``turn_tolerance`` (m);
 * at the last action.
 
 Each segment's end pose is its bottleneck pose (MT3's term): it is anchored to the demonstrated object (a component
-of the first cloud, :func:`~.replay_plan.split_objects`) nearest to it. At a gripper change the nearest object is
+of the first cloud, :func:`~.plan.split_objects`) nearest to it. At a gripper change the nearest object is
 taken however far (a grasp acts on something), and a release excludes the object grasped at the close before it
 (the grasped object sits in the hand, away from where the first cloud shows it); elsewhere only an object within
 ``anchor_radius`` anchors the segment; a segment that approaches nothing (a lift, a carry, a retreat into free
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..contract import poses_from_vectors
+from ..data.waypoints import StopCriterion, still_runs
 from ..geometry.se3 import pose_distance
-from .waypoints import StopCriterion, still_runs
 
 WRONG_PLAN_M = 0.03  # a replay plan this far off at a gripper change or its end is wrong (plan_is_wrong)
 

@@ -1,22 +1,22 @@
-"""Replay priors of pseudo-tasks (``pseudo_demos.replay_priors``): the plan inference makes, re-timed to the live
-demonstration; a live demonstration that is one of its context's gets its own actions back; the stream and the pool
-carry the priors only when asked, and keep a wrong prior with the probability asked."""
+"""Training priors of pseudo-tasks (``replay/priors.py``): the plan inference makes, read at the plan step the live
+demonstration has reached; a live demonstration that is one of its context's gets its own actions back; the stream
+and the pool carry the priors only when asked, keep a wrong prior with the probability asked, and read a prior off
+time by at most the shift asked."""
 
 from __future__ import annotations
-
-import dataclasses
 
 import numpy as np
 import pytest
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.contract import REPLAY_PRIOR_KEPT_KEY, REPLAY_PRIOR_KEY, poses_from_vectors
-from lerobot_instant_policy.data.replay_plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
-from lerobot_instant_policy.data.replay_segments import plan_is_wrong
 from lerobot_instant_policy.model.geometry_encoder import encoder_preset
 from lerobot_instant_policy.pseudo_demos.generation import GenerationConfig
-from lerobot_instant_policy.pseudo_demos.replay_priors import aligned_frames, replay_prior_actions
 from lerobot_instant_policy.pseudo_demos.stream import PseudoTaskStream, StreamConfig
+from lerobot_instant_policy.replay.plan import REPLAY_REGISTRATION, ReplaySource, plan_replay
+from lerobot_instant_policy.replay.priors import replay_prior_actions, replay_priors
+from lerobot_instant_policy.replay.segments import plan_is_wrong
+from lerobot_instant_policy.replay.timing import plan_steps, prior_steps
 from lerobot_instant_policy.training.task_pool import EncoderSource, encode_task
 
 WEIGHTS = InstantPolicyConfig(device="cpu").encoder_weights_path()
@@ -39,20 +39,7 @@ def rendered():
     return PseudoTaskStream(stream_config()).render_tasks([3, 4])
 
 
-def test_frames_map_waypoint_to_waypoint_and_stay_in_order(rendered):
-    demos = rendered[0].frames.planned.demos
-    live, planned = demos[-1], demos[0]
-    assert len(live.waypoint_frames) == len(planned.waypoint_frames)
-    assert np.array_equal(aligned_frames(live, planned, np.asarray(live.waypoint_frames)), planned.waypoint_frames)
-    mapped = aligned_frames(live, planned, np.arange(live.num_frames + 5))
-    assert mapped[0] == 0 and mapped[-1] == planned.num_frames - 1 and np.all(np.diff(mapped) >= 0)
-    # without a waypoint correspondence: proportional to the episodes' lengths
-    stripped = dataclasses.replace(planned, waypoint_frames=planned.waypoint_frames[:-1])
-    proportional = aligned_frames(live, stripped, np.array([0, live.num_frames - 1]))
-    assert proportional.tolist() == [0, planned.num_frames - 1]
-
-
-def test_the_prior_is_the_inference_plan_re_timed_to_the_live_demonstration(rendered):
+def test_the_prior_is_the_inference_plan_read_where_the_live_demonstration_has_got_to(rendered):
     task = rendered[0]
     live = task.frames.planned.demos[-1]
     assert task.replay_prior.shape == (3, 8, 8) and task.replay_prior.dtype == np.float32
@@ -62,22 +49,22 @@ def test_the_prior_is_the_inference_plan_re_timed_to_the_live_demonstration(rend
     sources = [ReplaySource(task.context_clouds[0, 0].numpy(), first.action)]
     live_cloud = PseudoTaskStream(stream_config())._render([task.frames])[0][-1].numpy()  # the task's clouds again
     plan = plan_replay("t", sources, live_cloud, REPLAY_REGISTRATION, "per_object")
-    steps = task.frames.live[:, None] + np.arange(8)
-    expected = plan.actions[aligned_frames(live, first, steps)]
+    expected = replay_priors(plan, plan_steps(live.state, plan.actions)[task.frames.live], 8)
     np.testing.assert_allclose(task.replay_prior, expected, atol=1e-6)
     poses_from_vectors(task.replay_prior.reshape(-1, 8))  # valid poses
 
 
 @pytest.mark.parametrize("plan", ["per_object", "whole", "anchored"])
 def test_a_live_demonstration_from_the_context_gets_its_own_actions_back(rendered, plan):
-    """Registration of a cloud onto itself is the identity and the re-timing of a demonstration onto itself too, so
-    the prior of a live demonstration that is context demonstration 0 is its own actions."""
+    """Registration of a cloud onto itself is the identity, and a demonstration that executed the plan exactly is at
+    plan step t at its frame t, so the prior of a live demonstration that is context demonstration 0 is its own
+    actions."""
     task = rendered[1]
     context = task.frames.planned.demos[:-1]
-    planned = dataclasses.replace(task.frames.planned, demos=[*context, context[0]])
     first_cloud = task.context_clouds[0, 0].numpy()
     frames = np.array([0, context[0].num_frames // 2, context[0].num_frames - 3])
-    prior, wrong = replay_prior_actions(planned, first_cloud, first_cloud, frames, 8, plan)
+    prior, wrong = replay_prior_actions(ReplaySource(first_cloud, context[0].action), first_cloud, context[0].state,
+                                        context[0].action, frames, 8, plan)
     assert not wrong  # a plan that is the live demonstration itself is right
     steps = np.minimum(frames[:, None] + np.arange(8), context[0].num_frames - 1)
     np.testing.assert_allclose(prior[..., :3], context[0].action[steps][..., :3], atol=2e-3)
@@ -121,9 +108,10 @@ def test_a_wrong_prior_is_kept_with_the_probability_asked_and_the_samples_say_so
         stream_config(wrong_prior_keep=1.5)
 
 
-def test_a_prior_read_off_time_is_the_plan_of_another_frame_and_the_same_for_a_seed(rendered):
-    """``prior_time_shift`` M: each live frame's prior is the on-time prior of a frame at most M away (clamped to the
-    episode), drawn the same for the same seed and task; 0 reads every prior on time (the faithful stream)."""
+def test_a_prior_read_off_time_is_the_plan_a_few_steps_away_and_the_same_for_a_seed(rendered):
+    """``prior_time_shift`` M: each live frame's prior is the plan read at most M steps from the plan step the live
+    demonstration has reached (clamped to the plan), drawn the same for the same seed and task; 0 reads every prior
+    on time (the faithful stream)."""
     shift = 6
     on_time = rendered[0]
     shifted = PseudoTaskStream(stream_config(prior_time_shift=shift)).render_tasks([3, 4])[0]
@@ -131,15 +119,15 @@ def test_a_prior_read_off_time_is_the_plan_of_another_frame_and_the_same_for_a_s
     np.testing.assert_array_equal(shifted.replay_prior, again.replay_prior)
     np.testing.assert_array_equal(shifted.clouds.numpy(), on_time.clouds.numpy())  # only the prior's timing differs
     live = on_time.frames.planned.demos[-1]
-    cloud = on_time.context_clouds[0, 0].numpy()
+    source = ReplaySource(on_time.context_clouds[0, 0].numpy(), on_time.frames.planned.demos[0].action)
     live_cloud = PseudoTaskStream(stream_config())._render([on_time.frames])[0][-1].numpy()
-    all_frames = np.arange(live.num_frames)
-    every, _ = replay_prior_actions(on_time.frames.planned, cloud, live_cloud, all_frames, 8, "per_object")
+    plan = plan_replay("t", [source], live_cloud, REPLAY_REGISTRATION, "per_object")
+    reached = plan_steps(live.state, plan.actions)[on_time.frames.live]
     offsets = []
-    for row, frame in enumerate(on_time.frames.live):
-        matches = [other - frame for other in range(max(frame - shift, 0), min(frame + shift, live.num_frames - 1) + 1)
-                   if np.allclose(shifted.replay_prior[row], every[other], atol=1e-6)]
-        assert matches, f"frame {frame}: the prior is no on-time prior within {shift} frames"
+    for row, step in enumerate(reached):
+        matches = [delta for delta in range(-shift, shift + 1) if np.allclose(
+            shifted.replay_prior[row], plan.actions[prior_steps([step], 8, len(plan.actions), [delta])[0]], atol=1e-6)]
+        assert matches, f"plan step {step}: the prior is not the plan read within {shift} steps of it"
         offsets.append(min(matches, key=abs))
     assert any(offset != 0 for offset in offsets)  # some prior is read off time
     with pytest.raises(ValueError, match="prior_time_shift must be a non-negative integer"):

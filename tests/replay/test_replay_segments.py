@@ -1,4 +1,4 @@
-"""Segments of a demonstration and their anchors (``data/replay_segments.py``): a segment ends at a gripper change,
+"""Segments of a demonstration and their anchors (``replay/segments.py``): a segment ends at a gripper change,
 a stop, a turn and the last action; it is anchored to the object its end approaches, a release never to the object
 just grasped, and a segment that ends in free space keeps the anchor before it."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_instant_policy.data.replay_segments import SegmentConfig, anchor_segments, plan_is_wrong, segment_ends
+from lerobot_instant_policy.replay.segments import SegmentConfig, anchor_segments, plan_is_wrong, segment_ends
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw: a half turn about x, pointing the gripper down
 

@@ -1,4 +1,4 @@
-"""Replay plans (``data/replay_plan.py``): where two objects move independently between the demonstration and the
+"""Replay plans (``replay/plan.py``): where two objects move independently between the demonstration and the
 live scene, the per-object and the anchored plans grasp where the grasped object is now and release where the other
 one is now; one motion for the whole cloud cannot do both. The anchored plan does the same for a demonstration that
 never grasps (a push, a reach), where the per-object plan falls back to the whole cloud."""
@@ -11,14 +11,14 @@ from synthetic_demos import MUG, carry_actions, carry_demo, object_cloud, object
 
 from lerobot_instant_policy.contract import NUM_POINTS
 from lerobot_instant_policy.data.demonstrations import Demonstration
-from lerobot_instant_policy.data.replay_plan import (
+from lerobot_instant_policy.geometry.registration import RegistrationConfig
+from lerobot_instant_policy.replay.plan import (
     REPLAY_PLANS,
     plan_replay,
     replay_plan_name,
     split_objects,
     transform_pose_actions,
 )
-from lerobot_instant_policy.geometry.registration import RegistrationConfig
 
 CLOSE, RELEASE = 2, 7  # the frames where the demonstration's gripper closes on the mug and opens above the duck
 REGISTRATION = RegistrationConfig(yaw_only=True)

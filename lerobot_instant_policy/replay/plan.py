@@ -16,7 +16,7 @@ slerp) by the fraction of the carry's path the demonstrated gripper has travelle
 structure (one object, no grasp and release) is planned whole.
 
 Anchored (``plan="anchored"``), for every demonstration: its actions are cut into segments at gripper changes, stops
-and turns, each anchored to the demonstrated object its end pose approaches (:mod:`.replay_segments`); each anchor is
+and turns, each anchored to the demonstrated object its end pose approaches (:mod:`.segments`); each anchor is
 registered onto the live object it fits best (one-to-one), and an anchored segment's end moves with its anchor.
 Between two anchored ends the poses are blended from the first anchor's motion into the second's by the fraction of
 the path between them travelled, as in the per-object carry, so the joins are smooth and a segment in transit (a
@@ -39,9 +39,9 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..contract import poses_from_vectors, vectors_from_poses
+from ..data.demonstrations import Demonstration
 from ..geometry.registration import RegistrationConfig, RegistrationResult, register_rigid
-from .demonstrations import Demonstration
-from .replay_segments import SegmentConfig, anchor_segments, nearest_object
+from .segments import SegmentConfig, anchor_segments, nearest_object
 
 # The registration of the replay an instant_policy denoises from (``replay_init_strength``) and trains to refine:
 # yaw-only, tabletop objects standing upright (the demo_replay baseline's default too).
@@ -85,11 +85,6 @@ class ReplayPlan:
     registration: RegistrationResult
     T_now_demo_per_action: np.ndarray | None = None
     object_fits: tuple[RegistrationResult, ...] = ()
-
-    def actions_from(self, step: int, count: int) -> np.ndarray:
-        """Planned actions ``step … step + count − 1``, ``(count, 8)``; past the plan's end its last action repeats."""
-        indices = np.minimum(np.arange(step, step + count), len(self.actions) - 1)
-        return self.actions[indices]
 
 
 def plan_replay(
