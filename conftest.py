@@ -107,8 +107,8 @@ def pool_run(tmp_path_factory) -> Path:
             shutil.rmtree(folder, ignore_errors=True)
             folder.mkdir()
             (folder / "stream.json").write_text(json.dumps(POOL_RUN_STREAM))
-            command = [str(Path(sys.executable).parent / "lerobot-ip-train"), f"--stream.config={folder / 'stream.json'}",
-                       *POOL_RUN_FLAGS, f"--output_dir={folder / 'run'}"]
+            command = [str(Path(sys.executable).parent / "lerobot-ip-train"),
+                       f"--stream.config={folder / 'stream.json'}", *POOL_RUN_FLAGS, f"--output_dir={folder / 'run'}"]
             env = {**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"}
             run = subprocess.run(command, capture_output=True, text=True, timeout=600, env=env, cwd=folder)
             assert run.returncode == 0, run.stderr[-3000:]

@@ -34,7 +34,8 @@ def plan_steps(live_state: np.ndarray, planned: np.ndarray) -> np.ndarray:
     (both world frame, the contract's layout) that dynamic time warping matches it to, ``(F,)`` int64,
     non-decreasing, 0 for the first frame and ``G − 1`` for the last. Step ``k`` stands for the pose the plan has
     reached there (module docstring): ``planned[k − 1]``, and for step 0 ``planned[0]``. The cost of matching frame
-    ``i`` to step ``k`` is the distance between the EE position of ``live_state[i]`` and that reached pose plus :data:`GRIPPER_MISMATCH_M` where their gripper states (thresholded at 0.5) differ."""
+    ``i`` to step ``k`` is the distance between the EE position of ``live_state[i]`` and that reached pose, plus
+    :data:`GRIPPER_MISMATCH_M` where their gripper states (thresholded at 0.5) differ."""
     live_state, planned = np.asarray(live_state, dtype=np.float64), np.asarray(planned, dtype=np.float64)
     reached = np.concatenate([planned[:1], planned[:-1]])  # (G, 8): the pose at each plan step
     cost = np.linalg.norm(live_state[:, None, :3] - reached[None, :, :3], axis=-1)
