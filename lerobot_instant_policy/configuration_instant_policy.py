@@ -205,6 +205,10 @@ class InstantPolicyConfig(PreTrainedConfig):
             preset's, ``True`` for ``refined``, else ``False``).
         replay_anchored: plan that replay per segment instead, each segment following the object it approaches
             (:mod:`~.replay.segments`); excludes ``replay_per_object`` (default ``False``).
+        replay_trust_m: with ``replay_init_strength``, the distrust range ``(start, end)`` in metres over which an
+            episode's start strength rises from ``replay_init_strength`` to the paper's start from noise, by how
+            poorly the replay's registration fits and how far the demonstrations' own plans part in the live scene
+            (:mod:`~.replay.trust`); ``None`` (default): ``replay_init_strength`` in every episode.
         refine_fraction: the share of training rows whose noised sample starts from the row's replay prior
             (``observation.replay_prior``, :mod:`.replay.priors`, which the pseudo-task stream and pool
             supply when this is positive) instead of its clean actions, the target staying the clean actions: the
@@ -275,6 +279,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     replay_init_strength: float | None = None
     replay_per_object: bool | None = None
     replay_anchored: bool = False
+    replay_trust_m: tuple[float, float] | None = None
     refine_fraction: float | None = None
     refine_max_strength: float = 0.5
     samples_per_prediction: int = 1
@@ -321,6 +326,14 @@ class InstantPolicyConfig(PreTrainedConfig):
             )
         if self.replay_init_strength is not None and not 0.0 < self.replay_init_strength <= 1.0:
             raise ValueError(f"replay_init_strength must lie in (0, 1] or be None, got {self.replay_init_strength}")
+        if self.replay_trust_m is not None:
+            if not self.replay_init_strength:
+                raise ValueError("replay_trust_m sets how far an episode's start strength rises from "
+                                 "replay_init_strength: set replay_init_strength to use it")
+            if len(self.replay_trust_m) != 2 or not 0.0 <= self.replay_trust_m[0] < self.replay_trust_m[1]:
+                raise ValueError(f"replay_trust_m must be (start, end) metres with 0 ≤ start < end, got "
+                                 f"{self.replay_trust_m}")
+            self.replay_trust_m = (float(self.replay_trust_m[0]), float(self.replay_trust_m[1]))
         if not 0.0 <= self.refine_fraction <= 1.0:
             raise ValueError(f"refine_fraction must lie in [0, 1], got {self.refine_fraction}")
         self.replay_plan()

@@ -43,7 +43,8 @@ from .model.bounds import SUPPORTED_DEMOS, SUPPORTED_WAYPOINTS, check_range
 from .model.instant_policy_network import DemoTensors, InstantPolicyContext, InstantPolicyNetwork
 from .model.occupancy import load_encoder_weights
 from .replay.plan import ReplayPlan
-from .replay.priors import plan_onto_live, replay_priors
+from .replay.priors import plan_onto_live, plan_onto_live_trusted, replay_priors
+from .replay.trust import trusted_strength
 from .training.batches import TrainingData, planned_in_ee_frame, training_batch
 from .training.context_encoder import ContextEncoder
 from .training.frame_encodings import FrameEncodings
@@ -98,6 +99,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._queue: deque[Tensor] = deque()
         self._last_gripper: Tensor | None = None
         self._replay_plans: list[ReplayPlan] | None = None
+        self._replay_strengths: list[float | None] | None = None
         self._episode_step = 0
         self._demonstrations = DemonstrationSource(
             "instant_policy", config.demo_repo_id, config.demo_root, config.num_demos
@@ -130,6 +132,7 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         self._queue.clear()
         self._last_gripper = None
         self._replay_plans = None
+        self._replay_strengths = None
         self._episode_step = 0
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
@@ -169,28 +172,32 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         steps (K; None: ``config.inference_steps``); ``generator`` seeds the DDIM noise.
         With ``config.replay_init_strength`` the denoising starts from ``initial_actions (B, T, 8)`` (absolute
         world-frame actions in the same layout, a plan made elsewhere), or without them from the episode's replay
-        plan at the current step (:meth:`replay_guess`); with ``config.samples_per_prediction`` > 1 each row is the
-        mean of that many samples.
+        plan at the current step (:meth:`replay_guess`), noised to the strength its trust gives with
+        ``config.replay_trust_m`` (a row trusted not at all starts from noise, as the paper's); with
+        ``config.samples_per_prediction`` > 1 each row is the mean of that many samples.
         """
         points_world, state = self._observation(batch)
         tasks = self._batch_tasks(batch, len(state))
         T_world_ee, gripper_open = poses_from_vectors_torch(state)
         gripper = (gripper_open > 0.5).to(state.dtype)
         steps = self.config.inference_steps if num_inference_steps is None else num_inference_steps
-        guess = None
+        guess, strengths = None, [self.config.replay_init_strength or 1.0] * len(state)
         if initial_actions is not None:
             if not self.config.replay_init_strength:
                 raise ValueError("initial_actions are a denoising start: set replay_init_strength to use them")
             guess = self._planned_variable("initial_actions", initial_actions, T_world_ee)
         elif self.config.replay_init_strength:
             guess = self.replay_guess(points_world, T_world_ee, tasks)
+            strengths = self._replay_strengths
         chunk = torch.empty(len(state), self.config.horizon, 8, dtype=state.dtype, device=state.device)
-        for task in dict.fromkeys(tasks):
-            rows = torch.tensor([row for row, name in enumerate(tasks) if name == task], device=state.device)
+        for task, strength in dict.fromkeys(zip(tasks, strengths, strict=True)):
+            rows = torch.tensor([row for row, name in enumerate(tasks) if (name, strengths[row]) == (task, strength)],
+                                device=state.device)
             context = self.rows_context(task, points_world[rows], T_world_ee[rows], gripper[rows])
+            start = None if guess is None or strength is None else guess[rows]
             T_ee_actions, action_gripper = self.network.sample_actions(
                 context, num_inference_steps=steps, generator=generator,
-                initial=None if guess is None else guess[rows], strength=self.config.replay_init_strength or 1.0,
+                initial=start, strength=1.0 if start is None else strength,
                 num_samples=self.config.samples_per_prediction,
             )
             chunk[rows] = vectors_from_poses_torch(compose(T_world_ee[rows][:, None], T_ee_actions), action_gripper)
@@ -244,13 +251,24 @@ class InstantPolicyPolicy(PreTrainedPolicy):
         The plans (:func:`~.replay.priors.plan_onto_live` of each row's task demonstrations onto its cloud
         ``points_world (B, P, 3)``) are made at the episode's first prediction and kept until :meth:`reset`;
         ``T_world_ee (B, 4, 4)`` is the current EE pose. The robot has followed the plan, so its control step is its
-        plan step: the guess for action ``j`` is planned action ``step + j`` (:func:`~.replay.priors.replay_priors`)."""
+        plan step: the guess for action ``j`` is planned action ``step + j`` (:func:`~.replay.priors.replay_priors`).
+        Each row's start strength is kept beside its plan: ``config.replay_init_strength``, or with
+        ``config.replay_trust_m`` the plan's :func:`~.replay.trust.trusted_strength`, None where it rises to 1 (the
+        row starts from noise)."""
         if self._replay_plans is None or len(self._replay_plans) != len(tasks):
             clouds = points_world.detach().cpu().numpy()
-            self._replay_plans = [
-                plan_onto_live(task, self._demonstrations.get(task), cloud, self.config.replay_plan())
-                for task, cloud in zip(tasks, clouds, strict=True)
-            ]
+            plan, trust_range = self.config.replay_plan(), self.config.replay_trust_m
+            self._replay_plans, self._replay_strengths = [], []
+            for task, cloud in zip(tasks, clouds, strict=True):
+                demonstrations = self._demonstrations.get(task)
+                if trust_range is None:
+                    self._replay_plans.append(plan_onto_live(task, demonstrations, cloud, plan))
+                    self._replay_strengths.append(self.config.replay_init_strength)
+                    continue
+                replay, trust = plan_onto_live_trusted(task, demonstrations, cloud, plan)
+                strength = trusted_strength(trust, self.config.replay_init_strength, trust_range)
+                self._replay_plans.append(replay)
+                self._replay_strengths.append(None if strength >= 1.0 else strength)
         step = np.array([self._episode_step])
         planned = np.concatenate([replay_priors(plan, step, self.config.horizon) for plan in self._replay_plans])
         return self._planned_variable("the replay plan", torch.from_numpy(planned), T_world_ee)

@@ -187,6 +187,32 @@ def test_denoising_starts_from_the_replayed_demonstration_at_the_episode_step(mo
     assert sampled and set(sampled) == {0.5}
 
 
+def test_replay_trust_starts_from_noise_where_the_demonstrations_part_and_from_the_replay_where_they_agree(
+        monkeypatch):
+    """replay_trust_m: demonstrations that agree in the live scene keep replay_init_strength from the plan; a second
+    demonstration whose actions miss its scene by 8 cm lifts the distrust past the range's end, and the episode
+    starts from noise, as the paper's inference (initial None); rows of one batch keep their own starts."""
+    config = InstantPolicyConfig(device="cpu", replay_init_strength=0.25, replay_trust_m=(0.02, 0.05))
+    policy = InstantPolicyPolicy(config).eval()
+    sampled = []
+
+    def record_start(context, initial=None, strength=1.0, **kwargs):
+        sampled.append((None if initial is None else len(initial), strength))
+        return torch.eye(4).repeat(1, 8, 1, 1), torch.ones(1, 8)  # one row: the EE held
+
+    monkeypatch.setattr(policy.network, "sample_actions", record_start)
+    agreeing = lift_demos(2)
+    missing = make_demonstration(object_pose(0.45, 0.1, 20.0), TASK, seed=1)
+    missing.action[:, 0] += 0.08  # acted 8 cm beside the object its cloud shows
+    for demonstrations, expected in ((agreeing, (1, 0.25)), ([agreeing[0], missing], (None, 1.0))):
+        policy.set_demonstrations(demonstrations)
+        policy.reset()
+        sampled.clear()
+        observation = live_observation(frame=0)
+        policy.predict_action_chunk(observation)
+        assert sampled == [expected]
+
+
 def test_padded_actions_hold_the_last_real_action():
     actions = torch.arange(2 * 4 * 8, dtype=torch.float32).view(2, 4, 8)
     is_pad = torch.tensor([[False, False, True, True], [False, False, False, False]])

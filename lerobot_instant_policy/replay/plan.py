@@ -86,6 +86,13 @@ class ReplayPlan:
     T_now_demo_per_action: np.ndarray | None = None
     object_fits: tuple[RegistrationResult, ...] = ()
 
+    @property
+    def fit_error(self) -> float:
+        """How well the plan's registration fits (m): the mean ``fit_error`` of its object fits, or of the
+        whole-cloud fit where it has none."""
+        fits = self.object_fits or (self.registration,)
+        return float(np.mean([fit.fit_error for fit in fits]))
+
 
 def plan_replay(
     task: str,
@@ -98,23 +105,42 @@ def plan_replay(
     actions in the live scene: ``plan`` one of :data:`REPLAY_PLANS` (module docstring); a demonstration that the
     per-object or anchored plan cannot structure is planned whole. A demonstration is read through its
     :class:`ReplaySource` (its first cloud and its actions)."""
+    return best_plan(plan_each(task, demonstrations, cloud_now, config, plan))
+
+
+def plan_each(
+    task: str,
+    demonstrations: Sequence[Demonstration | ReplaySource],
+    cloud_now: np.ndarray,
+    config: RegistrationConfig,
+    plan: str = "whole",
+) -> list[ReplayPlan]:
+    """Every demonstration's own plan in the live scene, in their order (:func:`plan_replay`'s candidates): structured
+    as ``plan`` asks where the demonstration allows, else whole."""
     if plan not in REPLAY_PLANS:
         raise ValueError(f"unknown replay plan {plan!r}: expected one of {REPLAY_PLANS}")
     if not demonstrations:
         raise ValueError(f"no demonstrations of task {task!r} to replay")
     demonstrations = [demo if isinstance(demo, ReplaySource) else ReplaySource.of(demo) for demo in demonstrations]
+    plans: list[ReplayPlan | None] = [None] * len(demonstrations)
     if plan != "whole":
         live_objects = split_objects(cloud_now)
         planner = _plan_per_object if plan == "per_object" else _plan_anchored
         plans = [planner(task, index, demo, live_objects, config) for index, demo in enumerate(demonstrations)]
-        plans = [candidate for candidate in plans if candidate is not None]
-        if plans:
-            return min(plans, key=lambda candidate: np.mean([fit.fit_error for fit in candidate.object_fits]))
-    fits = [register_rigid(demo.first_cloud, cloud_now, config) for demo in demonstrations]
-    best = int(np.argmin([fit.fit_error for fit in fits]))
-    T_now_demo = fits[best].T_target_source
-    actions = transform_pose_actions(T_now_demo, demonstrations[best].action)
-    return ReplayPlan(task=task, demo_index=best, T_now_demo=T_now_demo, actions=actions, registration=fits[best])
+    for index, demo in enumerate(demonstrations):
+        if plans[index] is None:
+            fit = register_rigid(demo.first_cloud, cloud_now, config)
+            plans[index] = ReplayPlan(task=task, demo_index=index, T_now_demo=fit.T_target_source,
+                                      actions=transform_pose_actions(fit.T_target_source, demo.action),
+                                      registration=fit)
+    return plans
+
+
+def best_plan(plans: Sequence[ReplayPlan]) -> ReplayPlan:
+    """The plan :func:`plan_replay` executes among one task's :func:`plan_each`: the structured plan (per object or
+    anchored) that fits best where there is one, else the whole-cloud plan that fits best (:attr:`ReplayPlan.fit_error`)."""
+    structured = [candidate for candidate in plans if candidate.object_fits]
+    return min(structured or plans, key=lambda candidate: candidate.fit_error)
 
 
 def split_objects(points: np.ndarray, gap: float = 0.02, min_fraction: float = 0.02) -> list[np.ndarray]:

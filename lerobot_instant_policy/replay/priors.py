@@ -5,7 +5,7 @@ here, planned and timed alike.
 
 The plan (:func:`plan_onto_live`) is :func:`~.plan.plan_replay` with the yaw-only registration
 (:data:`~.plan.REPLAY_REGISTRATION`) of the demonstrations' first clouds onto the live episode's first cloud, made
-once per episode. A prior is ``(T, 8)`` planned actions read by plan step (:func:`replay_priors`,
+once per episode; :func:`plan_onto_live_trusted` also says how far it can be trusted (:mod:`.trust`). A prior is ``(T, 8)`` planned actions read by plan step (:func:`replay_priors`,
 :func:`~.timing.prior_steps`): at inference the control step (the robot has followed the plan so far); for a
 recorded live episode, which another demonstrator recorded at its own pace, the plan step of each frame
 (:func:`~.timing.plan_steps` on its states).
@@ -29,9 +29,10 @@ from typing import NamedTuple
 import numpy as np
 
 from ..data.demonstrations import Demonstration
-from .plan import REPLAY_REGISTRATION, ReplayPlan, ReplaySource, plan_replay
+from .plan import REPLAY_REGISTRATION, ReplayPlan, ReplaySource, best_plan, plan_each, plan_replay
 from .segments import plan_is_wrong
 from .timing import plan_steps, prior_steps
+from .trust import PlanTrust, plan_trust
 
 
 def plan_onto_live(task: str, demonstrations: Sequence[Demonstration | ReplaySource], live_first_cloud: np.ndarray,
@@ -39,6 +40,14 @@ def plan_onto_live(task: str, demonstrations: Sequence[Demonstration | ReplaySou
     """The ``plan`` replay (one of :data:`~.plan.REPLAY_PLANS`) of ``demonstrations`` of ``task`` onto the live
     episode's first cloud ``live_first_cloud (P, 3)`` (world frame), with the registration inference uses."""
     return plan_replay(task, demonstrations, live_first_cloud, REPLAY_REGISTRATION, plan)
+
+
+def plan_onto_live_trusted(task: str, demonstrations: Sequence[Demonstration | ReplaySource],
+                           live_first_cloud: np.ndarray, plan: str) -> tuple[ReplayPlan, PlanTrust]:
+    """:func:`plan_onto_live`'s plan and its :class:`~.trust.PlanTrust` among every demonstration's own plan."""
+    candidates = plan_each(task, demonstrations, live_first_cloud, REPLAY_REGISTRATION, plan)
+    chosen = best_plan(candidates)
+    return chosen, plan_trust(candidates, chosen)
 
 
 def replay_priors(planned: ReplayPlan, steps: np.ndarray, horizon: int, shifts: np.ndarray | None = None
@@ -78,4 +87,4 @@ def replay_prior_actions(
     return ReplayPrior(replay_priors(replay, steps, horizon, time_shifts), plan_is_wrong(replay.actions, live_action))
 
 
-__all__ = ["ReplayPrior", "plan_onto_live", "replay_prior_actions", "replay_priors"]
+__all__ = ["ReplayPrior", "plan_onto_live", "plan_onto_live_trusted", "replay_prior_actions", "replay_priors"]

@@ -70,7 +70,7 @@ def segment_ends(actions: np.ndarray, config: SegmentConfig = SegmentConfig()) -
     if actions.ndim != 2 or actions.shape[1] != 8 or len(actions) < 1:
         raise ValueError(f"actions must be (F, 8) with F ≥ 1, got {actions.shape}")
     last = len(actions) - 1
-    ends = set(gripper_changes(actions).tolist()) | set(_stop_starts(actions, config.stop)) | {last}
+    ends = set(gripper_changes(actions).tolist()) | set(stop_starts(actions, config.stop)) | {last}
     fixed = sorted(ends | {0})
     for start, stop in zip(fixed[:-1], fixed[1:], strict=True):
         ends |= {start + int(vertex) for vertex in _turns(actions[start:stop + 1, :3], config.turn_tolerance)}
@@ -149,7 +149,7 @@ def plan_is_wrong(planned: np.ndarray, demonstrated: np.ndarray, tolerance: floa
     return bool(np.linalg.norm(planned[-1, :3] - demonstrated[-1, :3]) > tolerance)
 
 
-def _stop_starts(actions: np.ndarray, stop: StopCriterion) -> list[int]:
+def stop_starts(actions: np.ndarray, stop: StopCriterion) -> list[int]:
     """First action of every run of at least ``stop.min_steps`` nearly still steps of the commanded poses."""
     T_world_ee, _ = poses_from_vectors(actions)
     moved, turned = pose_distance(T_world_ee[:-1], T_world_ee[1:])
@@ -177,4 +177,4 @@ def _turns(positions: np.ndarray, tolerance: float) -> list[int]:
 
 
 __all__ = ["WRONG_PLAN_M", "SegmentConfig", "Segments", "anchor_segments", "gripper_change_kinds", "gripper_changes",
-           "nearest_object", "plan_is_wrong", "segment_ends"]
+           "nearest_object", "plan_is_wrong", "segment_ends", "stop_starts"]
