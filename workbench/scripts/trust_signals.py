@@ -2,7 +2,7 @@
 demonstrations' disagreement) tells the plans that are wrong in their scene from those that are right, where ground
 truth exists (:func:`~lerobot_instant_policy.evaluation.replay_error.plan_error`).
 
-    python workbench/scripts/trust_signals.py outputs/results/suite_dev/demos [--plans anchored,per_object]
+    python -m workbench.scripts.trust_signals outputs/results/suite_dev/demos [--plans anchored,per_object]
 
 ``DEMOS`` holds the demonstration sets an evaluation recorded (``<task>-n<N>-s<seed>``, as
 ``python -m workbench.cli.replay_error`` reads them). Each episode of a set is the live scene in turn and the next set
