@@ -262,13 +262,14 @@ class InstantPolicyPolicy(PreTrainedPolicy):
             for task, cloud in zip(tasks, clouds, strict=True):
                 demonstrations = self._demonstrations.get(task)
                 if trust_range is None:
-                    self._replay_plans.append(plan_onto_live(task, demonstrations, cloud, plan))
-                    self._replay_strengths.append(self.config.replay_init_strength)
-                    continue
-                replay, trust = plan_onto_live_trusted(task, demonstrations, cloud, plan)
-                strength = trusted_strength(trust, self.config.replay_init_strength, trust_range)
+                    replay = plan_onto_live(task, demonstrations, cloud, plan)
+                    strength = self.config.replay_init_strength
+                else:
+                    replay, trust = plan_onto_live_trusted(task, demonstrations, cloud, plan)
+                    strength = trusted_strength(trust, self.config.replay_init_strength, trust_range)
+                    strength = None if strength >= 1.0 else strength
                 self._replay_plans.append(replay)
-                self._replay_strengths.append(None if strength >= 1.0 else strength)
+                self._replay_strengths.append(strength)
         step = np.array([self._episode_step])
         planned = np.concatenate([replay_priors(plan, step, self.config.horizon) for plan in self._replay_plans])
         return self._planned_variable("the replay plan", torch.from_numpy(planned), T_world_ee)

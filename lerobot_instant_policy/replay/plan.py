@@ -138,7 +138,8 @@ def plan_each(
 
 def best_plan(plans: Sequence[ReplayPlan]) -> ReplayPlan:
     """The plan :func:`plan_replay` executes among one task's :func:`plan_each`: the structured plan (per object or
-    anchored) that fits best where there is one, else the whole-cloud plan that fits best (:attr:`ReplayPlan.fit_error`)."""
+    anchored) that fits best where there is one, else the whole-cloud plan that fits best
+    (:attr:`ReplayPlan.fit_error`)."""
     structured = [candidate for candidate in plans if candidate.object_fits]
     return min(structured or plans, key=lambda candidate: candidate.fit_error)
 

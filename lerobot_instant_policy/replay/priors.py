@@ -5,10 +5,10 @@ here, planned and timed alike.
 
 The plan (:func:`plan_onto_live`) is :func:`~.plan.plan_replay` with the yaw-only registration
 (:data:`~.plan.REPLAY_REGISTRATION`) of the demonstrations' first clouds onto the live episode's first cloud, made
-once per episode; :func:`plan_onto_live_trusted` also says how far it can be trusted (:mod:`.trust`). A prior is ``(T, 8)`` planned actions read by plan step (:func:`replay_priors`,
-:func:`~.timing.prior_steps`): at inference the control step (the robot has followed the plan so far); for a
-recorded live episode, which another demonstrator recorded at its own pace, the plan step of each frame
-(:func:`~.timing.plan_steps` on its states).
+once per episode; :func:`plan_onto_live_trusted` also says how far it can be trusted (:mod:`.trust`). A prior is
+``(T, 8)`` planned actions read by plan step (:func:`replay_priors`, :func:`~.timing.prior_steps`): at inference
+the control step (the robot has followed the plan so far); for a recorded live episode, which another demonstrator
+recorded at its own pace, the plan step of each frame (:func:`~.timing.plan_steps` on its states).
 
 Training (:func:`replay_prior_actions`, called by the pseudo-task stream) plans only from the first context
 demonstration: a training batch keeps the first N demonstrations of each context (``InstantPolicyPolicy.forward``),

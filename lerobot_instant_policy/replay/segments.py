@@ -70,7 +70,7 @@ def segment_ends(actions: np.ndarray, config: SegmentConfig = SegmentConfig()) -
     if actions.ndim != 2 or actions.shape[1] != 8 or len(actions) < 1:
         raise ValueError(f"actions must be (F, 8) with F ≥ 1, got {actions.shape}")
     last = len(actions) - 1
-    ends = set(gripper_changes(actions).tolist()) | set(stop_starts(actions, config.stop)) | {last}
+    ends = acting_ends(actions, config.stop)
     fixed = sorted(ends | {0})
     for start, stop in zip(fixed[:-1], fixed[1:], strict=True):
         ends |= {start + int(vertex) for vertex in _turns(actions[start:stop + 1, :3], config.turn_tolerance)}
@@ -149,7 +149,13 @@ def plan_is_wrong(planned: np.ndarray, demonstrated: np.ndarray, tolerance: floa
     return bool(np.linalg.norm(planned[-1, :3] - demonstrated[-1, :3]) > tolerance)
 
 
-def stop_starts(actions: np.ndarray, stop: StopCriterion) -> list[int]:
+def acting_ends(actions: np.ndarray, stop: StopCriterion = SegmentConfig().stop) -> set[int]:
+    """The segment ends of ``actions (F, 8)`` where the demonstrator acts: its gripper changes, the first action of
+    each stop (``stop``) and its last action; :func:`segment_ends` adds the turns between them."""
+    return set(gripper_changes(actions).tolist()) | set(_stop_starts(actions, stop)) | {len(actions) - 1}
+
+
+def _stop_starts(actions: np.ndarray, stop: StopCriterion) -> list[int]:
     """First action of every run of at least ``stop.min_steps`` nearly still steps of the commanded poses."""
     T_world_ee, _ = poses_from_vectors(actions)
     moved, turned = pose_distance(T_world_ee[:-1], T_world_ee[1:])
@@ -176,5 +182,5 @@ def _turns(positions: np.ndarray, tolerance: float) -> list[int]:
             + [farthest + vertex for vertex in _turns(positions[farthest:], tolerance)])
 
 
-__all__ = ["WRONG_PLAN_M", "SegmentConfig", "Segments", "anchor_segments", "gripper_change_kinds", "gripper_changes",
-           "nearest_object", "plan_is_wrong", "segment_ends", "stop_starts"]
+__all__ = ["WRONG_PLAN_M", "SegmentConfig", "Segments", "acting_ends", "anchor_segments", "gripper_change_kinds",
+           "gripper_changes", "nearest_object", "plan_is_wrong", "segment_ends"]

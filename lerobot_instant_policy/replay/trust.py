@@ -4,13 +4,14 @@ well its registration fits, and how far the demonstrations agree once each is pl
 * ``fit_m``: the chosen plan's :attr:`~.plan.ReplayPlan.fit_error`, the mean nearest-neighbour distance (m) between
   the registered demonstration objects and the live ones, both ways.
 * ``disagreement_m``: every demonstration planned on its own onto the live cloud (:func:`~.plan.plan_each`); for
-  each pair of plans, the largest distance (m) from a bottleneck of one to the nearest planned position of the
-  other, taken both ways; the largest over pairs. A plan's bottlenecks are the segment ends where it acts
-  (:mod:`.segments`): its gripper changes, its stops (a press, a push's end, a wait) and its last action; its turns
-  are left out (a turn in transit, over a carry between two objects, is where two right plans may part). Timing-free:
-  two demonstrators who took the same path at different paces agree. Two demonstrations of a task, each registered rightly, lie on one path up to the demonstrators'
-  own variation; a wrong registration (a symmetric object's flipped yaw, a segment on the wrong object) moves one
-  plan's bottlenecks off the other's path. With one demonstration there is nothing to compare: 0.
+  each pair of plans, the largest distance (m) from a bottleneck of one to the nearest planned position of the other,
+  taken both ways; the largest over pairs. A plan's bottlenecks are the segment ends where it acts
+  (:func:`~.segments.acting_ends`): its gripper changes, its stops (a press, a push's end, a wait) and its last
+  action; its turns are left out (a turn in transit, over a carry between two objects, is where two right plans may
+  part). Timing-free: two demonstrators who took the same path at different paces agree. Two demonstrations of a task,
+  each registered rightly, lie on one path up to the demonstrators' own variation; a wrong registration (a symmetric
+  object's flipped yaw, a segment on the wrong object) moves one plan's bottlenecks off the other's path. With one
+  demonstration there is nothing to compare: 0.
 
 :func:`trusted_strength` turns the two into the SDEdit strength a prediction starts from
 (``InstantPolicyConfig.replay_trust_m``): the plan's distrust ``max(fit_m, disagreement_m)`` below the range's
@@ -27,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .plan import ReplayPlan
-from .segments import SegmentConfig, gripper_changes, stop_starts
+from .segments import acting_ends
 
 
 class PlanTrust(NamedTuple):
@@ -54,8 +55,7 @@ def path_disagreement(first: np.ndarray, second: np.ndarray) -> float:
     nearest planned position of the other (module docstring)."""
 
     def one_way(source: np.ndarray, target: np.ndarray) -> float:
-        ends = set(gripper_changes(source).tolist()) | set(stop_starts(source, SegmentConfig().stop)) | {len(source) - 1}
-        bottlenecks = source[sorted(ends), :3]
+        bottlenecks = source[sorted(acting_ends(source)), :3]
         distances = np.linalg.norm(bottlenecks[:, None, :] - target[None, :, :3], axis=-1)
         return float(distances.min(axis=1).max())
 

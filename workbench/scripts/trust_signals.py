@@ -1,6 +1,6 @@
 """Whether a replay plan's trust (:mod:`lerobot_instant_policy.replay.trust`: its registration's fit, the
 demonstrations' disagreement) tells the plans that are wrong in their scene from those that are right, where ground
-truth exists (:func:`~lerobot_instant_policy.evaluation.replay_error.plan_error`).
+truth exists (:func:`~lerobot_instant_policy.replay.segments.plan_is_wrong` against the live demonstration).
 
     python -m workbench.scripts.trust_signals outputs/results/suite_dev/demos [--plans anchored,per_object]
 
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_instant_policy.evaluation.replay_error import plan_error
 from lerobot_instant_policy.replay.plan import REPLAY_REGISTRATION, best_plan, plan_each
+from lerobot_instant_policy.replay.segments import plan_is_wrong
 from lerobot_instant_policy.replay.trust import plan_trust
 from workbench.cli.replay_error import demonstration_sets
 
@@ -43,11 +43,11 @@ def scene_records(demos: Path, plans: list[str]) -> list[dict]:
         for index, live_set in enumerate(sets):
             context = sets[(index + 1) % len(sets)]
             for live in live_set:
-                for plan in plans:
-                    error = plan_error(context, live, plan)
+                for plan in plans:  # the plan executed, judged as evaluation.replay_error judges it
                     candidates = plan_each(task, context, live.points_world[0], REPLAY_REGISTRATION, plan)
-                    trust = plan_trust(candidates, best_plan(candidates))
-                    records.append({"task": task, "plan": plan, "wrong": bool(error["wrong"]),
+                    chosen = best_plan(candidates)
+                    trust = plan_trust(candidates, chosen)
+                    records.append({"task": task, "plan": plan, "wrong": plan_is_wrong(chosen.actions, live.action),
                                     "fit_m": trust.fit_m, "disagreement_m": trust.disagreement_m,
                                     "distrust_m": trust.distrust_m})
     return records
