@@ -205,6 +205,8 @@ class InstantPolicyConfig(PreTrainedConfig):
             preset's, ``True`` for ``refined``, else ``False``).
         replay_anchored: plan that replay per segment instead, each segment following the object it approaches
             (:mod:`~.replay.segments`); excludes ``replay_per_object`` (default ``False``).
+        replay_consensus: plan it anchored, per object and whole, and start from the plan whose demonstrations agree
+            best in the live scene (:func:`~.replay.plan.plan_each`); excludes the two above (default ``False``).
         replay_trust_m: with ``replay_init_strength``, the distrust range ``(start, end)`` in metres over which an
             episode's start strength rises from ``replay_init_strength`` to the paper's start from noise, by how
             poorly the replay's registration fits and how far the demonstrations' own plans part in the live scene
@@ -279,6 +281,7 @@ class InstantPolicyConfig(PreTrainedConfig):
     replay_init_strength: float | None = None
     replay_per_object: bool | None = None
     replay_anchored: bool = False
+    replay_consensus: bool = False
     replay_trust_m: tuple[float, float] | None = None
     refine_fraction: float | None = None
     refine_max_strength: float = 0.5
@@ -412,8 +415,9 @@ class InstantPolicyConfig(PreTrainedConfig):
             raise ValueError(f"encoder_weights must name a .safetensors file, got {self.encoder_weights!r}")
 
     def replay_plan(self) -> str:
-        """The replay plan ``replay_per_object`` and ``replay_anchored`` name (:data:`~.replay.plan.REPLAY_PLANS`)."""
-        return replay_plan_name(self.replay_per_object, self.replay_anchored)
+        """The replay plan ``replay_per_object``, ``replay_anchored`` and ``replay_consensus`` name
+        (:data:`~.replay.plan.REPLAY_PLANS`)."""
+        return replay_plan_name(self.replay_per_object, self.replay_anchored, self.replay_consensus)
 
     @property
     def encoder_config(self) -> GeometryEncoderConfig:

@@ -4,6 +4,9 @@ what maps or moves poses.
 A scene is one library object at a pose ``T_world_object`` (its cloud sampled from the mesh surface with noise).
 A demonstration approaches the object from above, closes the gripper and lifts: its EE poses are fixed in the
 object frame, so moving the object by ``T`` moves every correct action by ``T``.
+
+Two-object scenes: a carry (a mug onto a duck, :func:`carry_demo`) and a push (a square block slid onto a square
+plate, :func:`push_demo`: both objects look alike turned a quarter, so only their layout tells which face to push).
 """
 
 from __future__ import annotations
@@ -114,3 +117,50 @@ def carry_demo(T_world_mug: np.ndarray, T_world_duck: np.ndarray, seed: int, gra
     state = np.concatenate([action[:1], action[:-1]])
     points = np.repeat(scene_cloud(T_world_mug, T_world_duck, seed)[None], len(action), axis=0)
     return Demonstration(points_world=points, state=state, action=action, task="put_on_duck")
+
+
+def box_cloud(extents: tuple[float, float, float], T_world_box: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """``(count, 3)`` world-frame surface samples (0.5 mm noise) of a box of ``extents`` (m) standing on the table at
+    ``T_world_box``."""
+    mesh = trimesh.creation.box(extents=extents)
+    points = np.asarray(mesh.sample(count, seed=seed)) + np.array([0.0, 0.0, extents[2] / 2])
+    points += np.random.default_rng(seed).normal(0.0, 0.0005, points.shape)
+    return transform_points(T_world_box, points)
+
+
+def push_layout(x: float, y: float, heading_deg: float, block_yaw_deg: float, plate_yaw_deg: float,
+                distance: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """``T_world_block, T_world_plate``: the block at ``(x, y)``, the plate ``distance`` (m) from it towards
+    ``heading_deg``, each turned by its own yaw."""
+    heading = np.deg2rad(heading_deg)
+    return (object_pose(x, y, block_yaw_deg),
+            object_pose(x + distance * np.cos(heading), y + distance * np.sin(heading), plate_yaw_deg))
+
+
+def push_cloud(T_world_block: np.ndarray, T_world_plate: np.ndarray, seed: int) -> np.ndarray:
+    """``(NUM_POINTS, 3)``: half the points on a 5 cm block, half on a 12 × 12 × 1 cm plate."""
+    half = NUM_POINTS // 2
+    return np.concatenate([box_cloud((0.05, 0.05, 0.05), T_world_block, half, seed),
+                           box_cloud((0.12, 0.12, 0.01), T_world_plate, half, seed + 1)]).astype(np.float32)
+
+
+def push_actions(T_world_block: np.ndarray, T_world_plate: np.ndarray) -> np.ndarray:
+    """``(8, 8)``: down behind the block (on the far side from the plate), stop, push it onto the plate, stop, up;
+    the gripper closed throughout."""
+    block, plate = T_world_block[:3, 3], T_world_plate[:3, 3]
+    towards = (plate - block) / np.linalg.norm(plate - block)
+    down = look_rotation(np.array([0.0, 0.0, -1.0]), yaw=float(np.arctan2(towards[1], towards[0])))
+    behind_block, behind_plate = block - 0.07 * towards, plate - 0.07 * towards
+    waypoints = [(behind_block, 0.15)] + [(behind_block, 0.03)] * 3 + [(behind_plate, 0.03)] * 3 + [(behind_plate, 0.15)]
+    rows = []
+    for xy, height in waypoints:
+        position, quat = pose_to_pos_quat(make_pose(np.array([xy[0], xy[1], height]), down))
+        rows.append(np.concatenate([position, quat, [0.0]]))
+    return np.asarray(rows, dtype=np.float32)
+
+
+def push_demo(T_world_block: np.ndarray, T_world_plate: np.ndarray, seed: int) -> Demonstration:
+    action = push_actions(T_world_block, T_world_plate)
+    points = np.repeat(push_cloud(T_world_block, T_world_plate, seed)[None], len(action), axis=0)
+    return Demonstration(points_world=points, state=np.concatenate([action[:1], action[:-1]]), action=action,
+                         task="slide_block")

@@ -39,7 +39,8 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     objects and lets the grasp follow the grasped object and the release the other one, for tasks whose two objects
     move independently (:func:`~..replay.plan.plan_replay`); ``replay_anchored`` cuts every demonstration into
     segments at gripper changes, stops and turns and lets each segment follow the object it approaches
-    (:mod:`~..replay.segments`); both ``False``: one motion for the whole cloud.
+    (:mod:`~..replay.segments`); ``replay_consensus`` plans all three and executes the plan whose demonstrations
+    agree best in the live scene; all ``False``: one motion for the whole cloud.
     """
 
     demo_repo_id: str | None = None
@@ -51,6 +52,7 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
     registration_points: int = 1024
     replay_per_object: bool = False
     replay_anchored: bool = False
+    replay_consensus: bool = False
 
     push_to_hub: bool = False
 
@@ -76,8 +78,9 @@ class DemoReplayConfig(UntrainedPolicyConfigMixin, PreTrainedConfig):
         )
 
     def replay_plan(self) -> str:
-        """The replay plan ``replay_per_object`` and ``replay_anchored`` name (:data:`~..replay.plan.REPLAY_PLANS`)."""
-        return replay_plan_name(self.replay_per_object, self.replay_anchored)
+        """The replay plan ``replay_per_object``, ``replay_anchored`` and ``replay_consensus`` name
+        (:data:`~..replay.plan.REPLAY_PLANS`)."""
+        return replay_plan_name(self.replay_per_object, self.replay_anchored, self.replay_consensus)
 
     def validate_features(self) -> None:
         """The policy reads ``observation.pointcloud (P, 3)`` and ``observation.state (8,)`` and writes ``action (8,)``."""

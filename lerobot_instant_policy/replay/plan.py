@@ -24,6 +24,15 @@ lift, a carry) drifts from what it left to what it approaches; before the first 
 the first anchor, after the last with the last. A grasp and
 place is anchored as the per-object plan plans it; a push, a reach to a marker, a handle and one object take the
 same path. A demonstration whose segments approach no object is planned whole.
+
+By consensus (``plan="consensus"``), for tasks with two or more demonstrations: every demonstration is planned
+anchored, per object and whole, and the plan whose demonstrations agree best in the live scene
+(:func:`~.agreement.plans_disagreement`) is executed: another plan replaces the anchored one only where its
+demonstrations part by :data:`CONSENSUS_MARGIN_M` less (two right plans' disagreements differ by millimetres). Each
+plan goes wrong in its own way (anchored: a symmetric object's quarter turn, registered on its own without the
+layout that told the demonstrator which face to push; whole: objects that moved apart between demonstrations), and a
+wrong plan's demonstrations part where right ones coincide. With one demonstration there is nothing to compare:
+anchored.
 """
 
 from __future__ import annotations
@@ -41,20 +50,26 @@ from scipy.spatial.transform import Rotation
 from ..contract import poses_from_vectors, vectors_from_poses
 from ..data.demonstrations import Demonstration
 from ..geometry.registration import RegistrationConfig, RegistrationResult, register_rigid
+from .agreement import plans_disagreement
 from .segments import SegmentConfig, anchor_segments, nearest_object
 
 # The registration of the replay an instant_policy denoises from (``replay_init_strength``) and trains to refine:
 # yaw-only, tabletop objects standing upright (the demo_replay baseline's default too).
 REPLAY_REGISTRATION = RegistrationConfig(yaw_only=True)
-# The plans plan_replay makes: one motion for the whole cloud, per object for a grasp and release, or per segment.
-REPLAY_PLANS = ("whole", "per_object", "anchored")
+# The plans plan_replay makes: one motion for the whole cloud, per object for a grasp and release, per segment, or
+# the one of those three the demonstrations agree on.
+REPLAY_PLANS = ("whole", "per_object", "anchored", "consensus")
+# The plans a consensus weighs, in the order that wins a tie, and by how much less (m) a later plan's demonstrations
+# must part to replace an earlier one (chosen on the dev seeds' demonstration sets, journal 2026-12-06).
+CONSENSUS_PLANS = ("anchored", "per_object", "whole")
+CONSENSUS_MARGIN_M = 0.01
 
 
-def replay_plan_name(per_object: bool, anchored: bool) -> str:
-    """The plan a config's two switches name (``anchored`` and ``per_object`` exclude each other)."""
-    if per_object and anchored:
-        raise ValueError("a replay is planned per object or anchored per segment, not both")
-    return "anchored" if anchored else "per_object" if per_object else "whole"
+def replay_plan_name(per_object: bool, anchored: bool, consensus: bool = False) -> str:
+    """The plan a config's three switches name (they exclude each other; none: whole)."""
+    if per_object + anchored + consensus > 1:
+        raise ValueError("a replay is planned per object, anchored per segment or by consensus: one of them, not two")
+    return "consensus" if consensus else "anchored" if anchored else "per_object" if per_object else "whole"
 
 
 @dataclass(frozen=True)
@@ -116,12 +131,23 @@ def plan_each(
     plan: str = "whole",
 ) -> list[ReplayPlan]:
     """Every demonstration's own plan in the live scene, in their order (:func:`plan_replay`'s candidates): structured
-    as ``plan`` asks where the demonstration allows, else whole."""
+    as ``plan`` asks where the demonstration allows, else whole; by consensus, the plans of the one of
+    :data:`CONSENSUS_PLANS` whose demonstrations agree best (module docstring)."""
     if plan not in REPLAY_PLANS:
         raise ValueError(f"unknown replay plan {plan!r}: expected one of {REPLAY_PLANS}")
     if not demonstrations:
         raise ValueError(f"no demonstrations of task {task!r} to replay")
     demonstrations = [demo if isinstance(demo, ReplaySource) else ReplaySource.of(demo) for demo in demonstrations]
+    if plan == "consensus":
+        if len(demonstrations) == 1:
+            return plan_each(task, demonstrations, cloud_now, config, CONSENSUS_PLANS[0])
+        chosen, least = None, np.inf
+        for family in CONSENSUS_PLANS:
+            plans = plan_each(task, demonstrations, cloud_now, config, family)
+            disagreement = plans_disagreement([candidate.actions for candidate in plans])
+            if disagreement < least - (CONSENSUS_MARGIN_M if chosen else 0.0):
+                chosen, least = plans, disagreement
+        return chosen
     plans: list[ReplayPlan | None] = [None] * len(demonstrations)
     if plan != "whole":
         live_objects = split_objects(cloud_now)

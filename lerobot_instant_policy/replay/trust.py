@@ -3,15 +3,9 @@ well its registration fits, and how far the demonstrations agree once each is pl
 
 * ``fit_m``: the chosen plan's :attr:`~.plan.ReplayPlan.fit_error`, the mean nearest-neighbour distance (m) between
   the registered demonstration objects and the live ones, both ways.
-* ``disagreement_m``: every demonstration planned on its own onto the live cloud (:func:`~.plan.plan_each`); for
-  each pair of plans, the largest distance (m) from a bottleneck of one to the nearest planned position of the other,
-  taken both ways; the largest over pairs. A plan's bottlenecks are the segment ends where it acts
-  (:func:`~.segments.acting_ends`): its gripper changes, its stops (a press, a push's end, a wait) and its last
-  action; its turns are left out (a turn in transit, over a carry between two objects, is where two right plans may
-  part). Timing-free: two demonstrators who took the same path at different paces agree. Two demonstrations of a task,
-  each registered rightly, lie on one path up to the demonstrators' own variation; a wrong registration (a symmetric
-  object's flipped yaw, a segment on the wrong object) moves one plan's bottlenecks off the other's path. With one
-  demonstration there is nothing to compare: 0.
+* ``disagreement_m``: every demonstration planned on its own onto the live cloud (:func:`~.plan.plan_each`), the
+  largest distance (m) from a bottleneck of one plan to the other's path (:func:`~.agreement.plans_disagreement`).
+  With one demonstration there is nothing to compare: 0.
 
 :func:`trusted_strength` turns the two into the SDEdit strength a prediction starts from
 (``InstantPolicyConfig.replay_trust_m``): the plan's distrust ``max(fit_m, disagreement_m)`` below the range's
@@ -22,13 +16,12 @@ network's own path); in between the strength rises linearly.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import combinations
 from typing import NamedTuple
 
 import numpy as np
 
+from .agreement import plans_disagreement
 from .plan import ReplayPlan
-from .segments import acting_ends
 
 
 class PlanTrust(NamedTuple):
@@ -45,22 +38,7 @@ class PlanTrust(NamedTuple):
 
 def plan_trust(plans: Sequence[ReplayPlan], chosen: ReplayPlan) -> PlanTrust:
     """The trust of ``chosen`` among one task's ``plans`` (each demonstration's, :func:`~.plan.plan_each`)."""
-    disagreement = max((path_disagreement(first.actions, second.actions) for first, second in combinations(plans, 2)),
-                       default=0.0)
-    return PlanTrust(fit_m=chosen.fit_error, disagreement_m=disagreement)
-
-
-def path_disagreement(first: np.ndarray, second: np.ndarray) -> float:
-    """The largest distance (m) from a bottleneck of either of two plans' actions ``(F, 8)`` (world frame) to the
-    nearest planned position of the other (module docstring)."""
-
-    def one_way(source: np.ndarray, target: np.ndarray) -> float:
-        bottlenecks = source[sorted(acting_ends(source)), :3]
-        distances = np.linalg.norm(bottlenecks[:, None, :] - target[None, :, :3], axis=-1)
-        return float(distances.min(axis=1).max())
-
-    first, second = np.asarray(first, dtype=np.float64), np.asarray(second, dtype=np.float64)
-    return max(one_way(first, second), one_way(second, first))
+    return PlanTrust(fit_m=chosen.fit_error, disagreement_m=plans_disagreement([plan.actions for plan in plans]))
 
 
 def trusted_strength(trust: PlanTrust, strength: float, distrust_range_m: tuple[float, float]) -> float:
@@ -73,4 +51,4 @@ def trusted_strength(trust: PlanTrust, strength: float, distrust_range_m: tuple[
     return strength + (1.0 - strength) * rise
 
 
-__all__ = ["PlanTrust", "path_disagreement", "plan_trust", "trusted_strength"]
+__all__ = ["PlanTrust", "plan_trust", "trusted_strength"]

@@ -75,18 +75,21 @@ def test_factory_resolves_the_registered_policy():
 
 
 def test_the_plan_options_are_named_as_instant_policys():
-    """``replay_per_object`` / ``replay_anchored`` choose the plan as ``InstantPolicyConfig``'s fields of those names
-    do; the two exclude each other."""
+    """``replay_per_object`` / ``replay_anchored`` / ``replay_consensus`` choose the plan as ``InstantPolicyConfig``'s
+    fields of those names do; they exclude each other."""
     from lerobot.policies.factory import make_policy_config
 
     from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 
-    for per_object, anchored in ((False, False), (True, False), (False, True)):
-        options = {"replay_per_object": per_object, "replay_anchored": anchored}
+    for per_object, anchored, consensus in ((False, False, False), (True, False, False), (False, True, False),
+                                            (False, False, True)):
+        options = {"replay_per_object": per_object, "replay_anchored": anchored, "replay_consensus": consensus}
         assert (make_policy_config("demo_replay", **options).replay_plan()
                 == InstantPolicyConfig(device="cpu", **options).replay_plan())
-    with pytest.raises(ValueError, match="not both"):
+    with pytest.raises(ValueError, match="not two"):
         make_policy_config("demo_replay", replay_per_object=True, replay_anchored=True)
+    with pytest.raises(ValueError, match="not two"):
+        InstantPolicyConfig(device="cpu", replay_anchored=True, replay_consensus=True)
 
 
 def test_make_policy_with_dataset_metadata(demo_root):

@@ -1,19 +1,36 @@
 """Replay plans (``replay/plan.py``): where two objects move independently between the demonstration and the
 live scene, the per-object and the anchored plans grasp where the grasped object is now and release where the other
 one is now; one motion for the whole cloud cannot do both. The anchored plan does the same for a demonstration that
-never grasps (a push, a reach), where the per-object plan falls back to the whole cloud."""
+never grasps (a push, a reach), where the per-object plan falls back to the whole cloud. By consensus the plan is the
+one whose demonstrations agree in the live scene: the whole cloud for a square block pushed onto a square plate,
+which the anchored plan registers each on its own and turns a quarter, and the anchored plan where objects moved
+apart."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_demos import MUG, carry_actions, carry_demo, object_cloud, object_pose, scene_cloud
+from synthetic_demos import (
+    MUG,
+    carry_actions,
+    carry_demo,
+    object_cloud,
+    object_pose,
+    push_actions,
+    push_cloud,
+    push_demo,
+    push_layout,
+    scene_cloud,
+)
 
 from lerobot_instant_policy.contract import NUM_POINTS
 from lerobot_instant_policy.data.demonstrations import Demonstration
 from lerobot_instant_policy.geometry.registration import RegistrationConfig
+from lerobot_instant_policy.replay.agreement import plans_disagreement
+from lerobot_instant_policy.replay.segments import plan_is_wrong
 from lerobot_instant_policy.replay.plan import (
     REPLAY_PLANS,
+    plan_each,
     plan_replay,
     replay_plan_name,
     split_objects,
@@ -113,12 +130,63 @@ def test_anchored_plan_falls_back_to_the_whole_cloud_where_nothing_is_approached
 def test_an_unknown_plan_and_both_switches_are_clear_errors():
     with pytest.raises(ValueError, match="unknown replay plan 'segments'"):
         plan_replay("put_on_duck", [], np.zeros((10, 3)), REGISTRATION, "segments")
-    with pytest.raises(ValueError, match="not both"):
-        replay_plan_name(per_object=True, anchored=True)
-    assert [replay_plan_name(False, False), replay_plan_name(True, False), replay_plan_name(False, True)] == \
-        list(REPLAY_PLANS)
+    for switches in ((True, True, False), (True, False, True), (False, True, True)):
+        with pytest.raises(ValueError, match="not two"):
+            replay_plan_name(*switches)
+    assert [replay_plan_name(False, False), replay_plan_name(True, False), replay_plan_name(False, True),
+            replay_plan_name(False, False, True)] == list(REPLAY_PLANS)
 
 
 def test_no_demonstrations_is_a_clear_error():
     with pytest.raises(ValueError, match="no demonstrations of task 'put_on_duck' to replay"):
         plan_replay("put_on_duck", [], np.zeros((10, 3)), REGISTRATION)
+
+
+def _push_scenes(count: int):
+    """``count`` push scenes: two demonstrations and a live layout, every heading and yaw drawn anew."""
+    for trial in range(count):
+        rng = np.random.default_rng(trial)
+        demos = [push_demo(*push_layout(0.45, -0.1, *rng.uniform((0, 0, 0), (360, 90, 90))), seed=10 * trial + index)
+                 for index in range(2)]
+        yield demos, push_layout(0.5, 0.0, *rng.uniform((0, 0, 0), (360, 90, 90)))
+
+
+def test_consensus_pushes_a_square_block_from_the_face_its_layout_names():
+    """Block and plate are square: registered each on its own (anchored), the block's quarter turns fit alike and
+    the push starts from a wrong face; the two demonstrations' plans part there, the whole-cloud plans agree (the
+    plate fixes the turn) and are right."""
+    for demos, live in _push_scenes(3):
+        cloud_now, truth = push_cloud(*live, seed=99), push_actions(*live)
+        anchored = plan_each("slide_block", demos, cloud_now, REGISTRATION, "anchored")
+        whole = plan_each("slide_block", demos, cloud_now, REGISTRATION, "whole")
+        assert plan_is_wrong(plan_replay("slide_block", demos, cloud_now, REGISTRATION, "anchored").actions, truth)
+        assert plans_disagreement([plan.actions for plan in anchored]) > 0.03
+        assert plans_disagreement([plan.actions for plan in whole]) < 0.02
+        consensus = plan_replay("slide_block", demos, cloud_now, REGISTRATION, "consensus")
+        assert not plan_is_wrong(consensus.actions, truth)
+        np.testing.assert_array_equal(consensus.actions,
+                                      plan_replay("slide_block", demos, cloud_now, REGISTRATION, "whole").actions)
+
+
+def test_consensus_keeps_the_anchored_plan_where_objects_moved_apart():
+    """A mug put on a duck that moved apart between the demonstrations and now, without a grasp to structure (the
+    per-object plan falls back to the whole cloud): the whole-cloud plans part, the anchored ones agree."""
+    demos = [carry_demo(object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0), seed=0, grasp_open=True),
+             carry_demo(object_pose(0.40, 0.05, -20.0), object_pose(0.60, -0.15, 40.0), seed=3, grasp_open=True)]
+    mug_now, duck_now = object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0)
+    cloud_now = scene_cloud(mug_now, duck_now, seed=5)
+    consensus = plan_replay("put_on_duck", demos, cloud_now, REGISTRATION, "consensus")
+    np.testing.assert_array_equal(consensus.actions,
+                                  plan_replay("put_on_duck", demos, cloud_now, REGISTRATION, "anchored").actions)
+    expected = carry_actions(mug_now, duck_now, grasp_open=True)
+    whole = plan_replay("put_on_duck", demos, cloud_now, REGISTRATION, "whole")
+    for frame in (1, 7):  # down at the mug, down at the duck
+        assert np.linalg.norm(consensus.actions[frame, :3] - expected[frame, :3]) < 0.01
+    assert max(np.linalg.norm(whole.actions[frame, :3] - expected[frame, :3]) for frame in (1, 7)) > 0.03
+
+
+def test_consensus_of_one_demonstration_is_the_anchored_plan():
+    demos, live = next(_push_scenes(1))
+    cloud_now = push_cloud(*live, seed=99)
+    np.testing.assert_array_equal(plan_replay("slide_block", demos[:1], cloud_now, REGISTRATION, "consensus").actions,
+                                  plan_replay("slide_block", demos[:1], cloud_now, REGISTRATION, "anchored").actions)

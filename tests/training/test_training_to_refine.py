@@ -154,7 +154,7 @@ def test_the_stream_plans_priors_as_the_policy_trains_and_runs_them():
     assert (refined.replay_priors, refined.replay_plan) == (True, "per_object")
     assert (faithful.replay_priors, faithful.replay_plan) == (False, "whole")
     assert (anchored.replay_priors, anchored.replay_plan) == (True, "anchored")
-    with pytest.raises(ValueError, match="not both"):
+    with pytest.raises(ValueError, match="not two"):
         InstantPolicyConfig(device="cpu", preset="refined", replay_anchored=True)
     assert np.isclose(InstantPolicyConfig(device="cpu", preset="refined").refine_fraction, 0.5)
 

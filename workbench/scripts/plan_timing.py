@@ -23,6 +23,7 @@ from lerobot_instant_policy.configuration_instant_policy import InstantPolicyCon
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.replay.plan import REPLAY_PLANS
 from lerobot_instant_policy.replay.priors import plan_onto_live
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
 
@@ -37,7 +38,7 @@ def main() -> None:
     parser.add_argument("--window", type=int, default=30)
     parser.add_argument("--every", type=int, default=5)
     parser.add_argument("--strength", type=float, default=0.25, help="replay_init_strength")
-    parser.add_argument("--plan", choices=("anchored", "per_object", "whole"), default="anchored")
+    parser.add_argument("--plan", choices=REPLAY_PLANS, default="anchored")
     parser.add_argument("--inference-steps", type=int, help="K (default: the checkpoint's)")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -46,7 +47,8 @@ def main() -> None:
     config.demo_repo_id, config.demo_root, config.num_demos, config.device = (
         f"local/{args.task}", args.demos, args.num_demos, "cpu")
     config.replay_init_strength = args.strength
-    config.replay_anchored, config.replay_per_object = args.plan == "anchored", args.plan == "per_object"
+    config.replay_anchored, config.replay_per_object, config.replay_consensus = (
+        args.plan == "anchored", args.plan == "per_object", args.plan == "consensus")
     if args.inference_steps:
         config.inference_steps = args.inference_steps
     policy = InstantPolicyPolicy.from_pretrained(args.checkpoint, config=config).eval()
