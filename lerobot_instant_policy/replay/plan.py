@@ -138,28 +138,24 @@ def plan_each(
     if not demonstrations:
         raise ValueError(f"no demonstrations of task {task!r} to replay")
     demonstrations = [demo if isinstance(demo, ReplaySource) else ReplaySource.of(demo) for demo in demonstrations]
-    if plan == "consensus":
-        if len(demonstrations) == 1:
-            return plan_each(task, demonstrations, cloud_now, config, CONSENSUS_PLANS[0])
-        chosen, least = None, np.inf
-        for family in CONSENSUS_PLANS:
-            plans = plan_each(task, demonstrations, cloud_now, config, family)
-            disagreement = plans_disagreement([candidate.actions for candidate in plans])
-            if disagreement < least - (CONSENSUS_MARGIN_M if chosen else 0.0):
-                chosen, least = plans, disagreement
-        return chosen
-    plans: list[ReplayPlan | None] = [None] * len(demonstrations)
-    if plan != "whole":
-        live_objects = split_objects(cloud_now)
-        planner = _plan_per_object if plan == "per_object" else _plan_anchored
-        plans = [planner(task, index, demo, live_objects, config) for index, demo in enumerate(demonstrations)]
-    for index, demo in enumerate(demonstrations):
-        if plans[index] is None:
-            fit = register_rigid(demo.first_cloud, cloud_now, config)
-            plans[index] = ReplayPlan(task=task, demo_index=index, T_now_demo=fit.T_target_source,
-                                      actions=transform_pose_actions(fit.T_target_source, demo.action),
-                                      registration=fit)
-    return plans
+    families = (plan,) if plan != "consensus" else CONSENSUS_PLANS if len(demonstrations) > 1 else CONSENSUS_PLANS[:1]
+    live_objects = split_objects(cloud_now) if any(family in _STRUCTURED for family in families) else []
+    whole: dict[int, ReplayPlan] = {}  # a demonstration's whole-cloud plan, registered once for every family
+    chosen, least = [], np.inf
+    for family in families:
+        planner = _STRUCTURED.get(family)
+        plans = []
+        for index, demo in enumerate(demonstrations):
+            structured = planner(task, index, demo, live_objects, config) if planner else None
+            if structured is None and index not in whole:
+                whole[index] = _plan_whole(task, index, demo, cloud_now, config)
+            plans.append(whole[index] if structured is None else structured)
+        if len(families) == 1:
+            return plans
+        disagreement = plans_disagreement([candidate.actions for candidate in plans])
+        if disagreement < least - (CONSENSUS_MARGIN_M if chosen else 0.0):
+            chosen, least = plans, disagreement
+    return chosen
 
 
 def best_plan(plans: Sequence[ReplayPlan]) -> ReplayPlan:
@@ -245,6 +241,16 @@ def _plan_anchored(
                       object_fits=tuple(fits[index] for index in used))
 
 
+def _plan_whole(
+    task: str, demo_index: int, demo: ReplaySource, cloud_now: np.ndarray, config: RegistrationConfig
+) -> ReplayPlan:
+    """The whole-cloud plan of one demonstration: its first cloud registered onto ``cloud_now``, every action moved by
+    that one motion."""
+    fit = register_rigid(demo.first_cloud, cloud_now, config)
+    return ReplayPlan(task=task, demo_index=demo_index, T_now_demo=fit.T_target_source,
+                      actions=transform_pose_actions(fit.T_target_source, demo.action), registration=fit)
+
+
 def _match_objects(
     demo_objects: list[np.ndarray], live_objects: list[np.ndarray], config: RegistrationConfig
 ) -> list[RegistrationResult]:
@@ -278,6 +284,10 @@ def _blend(T_first: np.ndarray, T_second: np.ndarray, weights: np.ndarray) -> np
     relative = Rotation.from_matrix(np.swapaxes(T_first[:, :3, :3], 1, 2) @ T_second[:, :3, :3]).as_rotvec()
     blended[:, :3, :3] = T_first[:, :3, :3] @ Rotation.from_rotvec(weights[:, None] * relative).as_matrix()
     return blended
+
+
+# The structured planners by plan name; either returns None where the demonstration or the scene lacks its structure.
+_STRUCTURED = {"per_object": _plan_per_object, "anchored": _plan_anchored}
 
 
 def transform_pose_actions(T_now_demo: np.ndarray, actions: np.ndarray) -> np.ndarray:
