@@ -40,6 +40,7 @@ from .dependencies import import_metaworld
 
 import_metaworld()  # sets MUJOCO_GL and checks the extra before mujoco is imported
 
+import mujoco  # noqa: E402
 from lerobot.envs.metaworld import MetaworldEnv  # noqa: E402
 
 from ...contract import NUM_POINTS, POSE_GRIPPER_SHAPE  # noqa: E402
@@ -135,6 +136,8 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         return observation, reward, terminated, truncated, info
 
     def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, np.ndarray]:
+        if self._cloud is None:
+            raw_obs = self._settled_reset_state()
         # MetaWorld places its goal sites after every step but not at reset, where they stay at the last episode's
         # goals until the first step: place them as its step does before the cameras draw them.
         for site, position in self._env._target_site_config:
@@ -150,6 +153,21 @@ class MetaworldPointCloudEnv(MetaworldEnv):
             "agent_pos": self.ee_state(),
             "environment_state": np.asarray(raw_obs, dtype=np.float32),
         }
+
+    def _settled_reset_state(self) -> np.ndarray:
+        """MetaWorld's state vector ``(39,)`` at reset, after the poses of every body are computed from the model.
+
+        MetaWorld's reset draws the layout twice (``reset_model`` runs in its ``reset`` and again in gymnasium's),
+        simulating the hand's return in between, and places some bodies through the model (``model.body(...).pos``:
+        peg-insert-side's box, the windows, the drawers, button-press-topdown's box) after that simulation without
+        recomputing their world poses. Until the first step those bodies' ``xpos`` are the first draw's, up to 15 cm
+        from where the physics then puts them, so the first cloud and the state vector would show them there. One
+        ``mj_forward`` computes the poses of the layout in force; the state vector is read again with MetaWorld's
+        reset convention (the previous-frame half equal to the current one)."""
+        env = self._env
+        mujoco.mj_forward(env.model, env.data)
+        env._prev_obs = env._get_curr_obs_combined_no_goal()
+        return env._get_obs()
 
     def close(self) -> None:
         if self.cameras is not None:
