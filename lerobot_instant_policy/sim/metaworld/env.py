@@ -160,7 +160,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         MetaWorld's reset draws the layout twice (``reset_model`` runs in its ``reset`` and again in gymnasium's),
         simulating the hand's return in between, and places some bodies through the model (``model.body(...).pos``:
         peg-insert-side's box, the windows, the drawers, button-press-topdown's box) after that simulation without
-        recomputing their world poses. Until the first step those bodies' ``xpos`` are the first draw's, up to 15 cm
+        recomputing their world poses. Until the first step those bodies' ``xpos`` are the first draw's, up to 17 cm
         from where the physics then puts them, so the first cloud and the state vector would show them there. One
         ``mj_forward`` computes the poses of the layout in force; the state vector is read again with MetaWorld's
         reset convention (the previous-frame half equal to the current one)."""
