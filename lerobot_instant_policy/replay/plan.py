@@ -15,15 +15,15 @@ between them each pose moved with ``A`` is blended into the same pose moved with
 slerp) by the fraction of the carry's path the demonstrated gripper has travelled. A demonstration without that
 structure (one object, no grasp and release) is planned whole.
 
-Anchored (``plan="anchored"``), for every demonstration: its actions are cut into segments at gripper changes, stops
-and turns, each anchored to the demonstrated object its end pose approaches (:mod:`.segments`); each anchor is
-registered onto the live object it fits best (one-to-one), and an anchored segment's end moves with its anchor.
-Between two anchored ends the poses are blended from the first anchor's motion into the second's by the fraction of
-the path between them travelled, as in the per-object carry, so the joins are smooth and a segment in transit (a
-lift, a carry) drifts from what it left to what it approaches; before the first anchored end the poses move with
-the first anchor, after the last with the last. A grasp and
-place is anchored as the per-object plan plans it; a push, a reach to a marker, a handle and one object take the
-same path. A demonstration whose segments approach no object is planned whole.
+Anchored (``plan="anchored"``), for every demonstration: its actions are cut into segments at gripper changes, stops and
+turns, each anchored to the demonstrated object its end pose, or the object the gripper holds, approaches
+(:mod:`.segments`); each anchor is registered onto the live object it fits best (one-to-one), and an anchored segment's
+end moves with its anchor. Between two anchored ends the poses are blended from the first anchor's motion into the
+second's by the fraction of the path between them travelled, as in the per-object carry, so the joins are smooth and a
+segment in transit (a lift, a carry) drifts from what it left to what it approaches; before the first anchored end the
+poses move with the first anchor, after the last with the last. A grasp and place is anchored as the per-object plan
+plans it; a push, a reach to a marker, a handle and one object take the same path. A demonstration whose segments
+approach no object is planned whole.
 
 By consensus (``plan="consensus"``), for tasks with two or more demonstrations: every demonstration is planned
 anchored, per object and whole, and the plan whose demonstrations agree best in the live scene

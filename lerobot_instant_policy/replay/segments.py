@@ -17,6 +17,12 @@ taken however far (a grasp acts on something), and a release excludes the object
 (the grasped object sits in the hand, away from where the first cloud shows it); elsewhere only an object within
 ``anchor_radius`` anchors the segment; a segment that approaches nothing (a lift, a carry, a retreat into free
 space) is in transit between the anchored segments around it (anchor ``-1``).
+
+While an object is held (from its close to the next gripper change), what a segment approaches is what the held
+object approaches too: the grasped cloud is carried rigidly with the EE from the grasp pose, the action between the
+close and the next change where the EE comes nearest to it (a gripper may be commanded shut while still descending),
+``T_world_held(t) = T_world_ee(t) · T_world_ee(grasp)⁻¹``, and another object within ``anchor_radius`` of the carried
+cloud anchors the segment however far the EE itself stays: a peg's tip in a hole, a puck held at a goal marker.
 """
 
 from __future__ import annotations
@@ -24,10 +30,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..contract import poses_from_vectors
 from ..data.waypoints import StopCriterion, still_runs
-from ..geometry.se3 import pose_distance
+from ..geometry.se3 import pose_distance, transform_points
 
 WRONG_PLAN_M = 0.03  # a replay plan this far off at a gripper change or its end is wrong (plan_is_wrong)
 
@@ -88,17 +95,26 @@ def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: Segm
     actions = np.asarray(actions, dtype=np.float64)
     ends = segment_ends(actions, config)
     opened = actions[:, 7] > 0.5
+    T_world_ee, _ = poses_from_vectors(actions)
     anchors: list[int] = []
     grasped: int | None = None
+    grasp = 0
     for end in ends:
         changed = end > 0 and opened[end] != opened[end - 1]
         releasing = changed and bool(opened[end])
         exclude = grasped if releasing and len(objects) > 1 else None
         nearest, distance = nearest_object(objects, actions[end, :3], exclude)
+        if grasped is not None and not changed and end > grasp:
+            T_moved = T_world_ee[end] @ np.linalg.inv(T_world_ee[grasp])  # the held object's motion since the grasp
+            held_nearest, held_distance = _nearest_to_held(objects, grasped, T_moved)
+            if held_distance < distance:
+                nearest, distance = held_nearest, held_distance
         anchored = changed or distance <= config.anchor_radius
         anchors.append(nearest if anchored else -1)
         if changed:
             grasped = None if releasing else nearest
+            if grasped is not None:
+                grasp = _grasp_pose(actions[:, :3], opened, int(end), objects[grasped])
     if max(anchors) < 0:
         return None
     return Segments(ends=ends, anchors=np.asarray(anchors, dtype=np.int64))
@@ -108,6 +124,25 @@ def nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int
     """The object (clouds ``(P_i, 3)``) with the point nearest to ``position (3,)``, other than ``exclude``, and
     that distance (m)."""
     distances = [np.inf if index == exclude else float(np.min(np.linalg.norm(points - position, axis=1)))
+                 for index, points in enumerate(objects)]
+    nearest = int(np.argmin(distances))
+    return nearest, distances[nearest]
+
+
+def _grasp_pose(positions: np.ndarray, opened: np.ndarray, close: int, grasped: np.ndarray) -> int:
+    """The action from ``close`` up to the next gripper change whose EE position (``positions (F, 3)``) lies
+    nearest to the ``grasped (P, 3)`` cloud: where the object starts to move with the hand."""
+    change = np.flatnonzero(opened[close:] != opened[close])
+    stop = close + int(change[0]) if len(change) else len(positions)
+    distances, _ = cKDTree(grasped).query(positions[close:stop])
+    return close + int(np.argmin(distances))
+
+
+def _nearest_to_held(objects: list[np.ndarray], grasped: int, T_moved: np.ndarray) -> tuple[int, float]:
+    """The object other than ``grasped`` nearest to the grasped cloud moved by ``T_moved (4, 4)`` (world frame, its
+    motion since the grasp pose), and that distance (m); ``(grasped, inf)`` with no other object."""
+    held = transform_points(T_moved, objects[grasped])
+    distances = [np.inf if index == grasped else float(np.min(cKDTree(points).query(held)[0]))
                  for index, points in enumerate(objects)]
     nearest = int(np.argmin(distances))
     return nearest, distances[nearest]

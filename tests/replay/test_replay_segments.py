@@ -79,6 +79,26 @@ def test_a_release_is_never_anchored_to_the_object_just_grasped():
     np.testing.assert_array_equal(segments.anchors, [0, -1, 1, -1])
 
 
+def test_a_held_object_anchors_the_segment_where_it_meets_another_object():
+    """A rod grasped near one end, the close commanded 12 cm above it while the EE still descends, lifted, carried and
+    lowered until its far end meets a block 16 cm from the EE: the carry's end and the last segment are anchored to
+    the block, which the EE itself never comes within ``anchor_radius`` of; the grasp stays on the rod. Carrying the
+    rod from where the close was commanded instead of from where the EE reached it would leave it 12 cm too low, in
+    transit."""
+    rng = np.random.default_rng(2)
+    rod = np.column_stack([rng.uniform(0.30, 0.50, 400), rng.uniform(-0.01, 0.01, 400), rng.uniform(0.01, 0.03, 400)])
+    objects = [rod, blob((0.10, 0.0, 0.02), seed=1)]
+    actions = actions_through([(0.45, 0.0, 0.25, 1), (0.45, 0.0, 0.15, 1), (0.45, 0.0, 0.15, 0), (0.45, 0.0, 0.03, 0),
+                               (0.45, 0.0, 0.08, 0), (0.28, 0.0, 0.08, 0), (0.28, 0.0, 0.03, 0)])
+    segments = anchor_segments(actions, objects)
+    assert segments is not None
+    closing, lowest, lifted, carried, last = 6, 15, 20, 25, 30
+    np.testing.assert_array_equal(segments.ends, [5, closing, lowest, lifted, carried, last])
+    np.testing.assert_array_equal(segments.anchors, [-1, 0, 0, -1, 1, 1])
+    ee_to_block = np.linalg.norm(objects[1][None] - actions[[carried, last], None, :3], axis=-1).min(axis=1)
+    assert np.all(ee_to_block > SegmentConfig().anchor_radius)
+
+
 def test_nothing_approached_gives_no_segments():
     objects = [blob((0.40, 0.0, 0.02), seed=0)]
     actions = actions_through([(0.40, 0.0, 0.40, 1), (0.60, 0.0, 0.40, 1)])
