@@ -153,7 +153,7 @@ def plan_each(
         if len(families) == 1:
             return plans
         disagreement = plans_disagreement([candidate.actions for candidate in plans])
-        if disagreement < least - (CONSENSUS_MARGIN_M if chosen else 0.0):
+        if disagreement < least - CONSENSUS_MARGIN_M:  # least is inf until a family is chosen
             chosen, least = plans, disagreement
     return chosen
 
