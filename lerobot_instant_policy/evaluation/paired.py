@@ -14,6 +14,11 @@ The interval resamples the clusters with replacement ``resamples`` times (a gene
 cells give the same interval) and takes the 2.5th and 97.5th percentiles of Δ over the resamples (the percentile
 bootstrap). With a single cluster there is nothing to resample: the interval is NaN. "A beats B" is said only where
 the whole interval lies above zero, "B beats A" where it lies below, "no difference shown" otherwise.
+
+Beside Δ, the discordant episodes say how it arises: ``a_only``, the episodes A succeeds in and B fails, and
+``b_only``, the reverse (``Δ = (a_only − b_only) / episodes``). Where B is the plan A starts from, they count the
+plan's failures A mends and its successes A breaks; two columns level in Δ may agree episode for episode or trade
+many episodes.
 """
 
 from __future__ import annotations
@@ -32,7 +37,8 @@ UNITS = ("task", "cell")  # what the bootstrap resamples (module docstring)
 @dataclass(frozen=True)
 class PairedDifference:
     """Δ = rate(A) − rate(B) over ``episodes`` paired episodes in ``cells`` cells, with its bootstrap interval over
-    ``clusters`` clusters of ``unit`` (``task`` or ``cell``)."""
+    ``clusters`` clusters of ``unit`` (``task`` or ``cell``), and the discordant episodes ``a_only`` (A succeeds, B
+    fails) and ``b_only`` (the reverse)."""
 
     a: str
     b: str
@@ -43,6 +49,8 @@ class PairedDifference:
     high: float
     unit: str = "task"
     clusters: int = 0
+    a_only: int = 0
+    b_only: int = 0
 
     @property
     def verdict(self) -> str:
@@ -57,12 +65,14 @@ class PairedDifference:
         return {"a": self.a, "b": self.b, "cells": self.cells, "episodes": self.episodes,
                 "difference": self.difference, "ci95_low": None if np.isnan(self.low) else self.low,
                 "ci95_high": None if np.isnan(self.high) else self.high, "unit": self.unit,
-                "clusters": self.clusters, "interval": f"cluster bootstrap over {unit}", "verdict": self.verdict}
+                "clusters": self.clusters, "interval": f"cluster bootstrap over {unit}", "verdict": self.verdict,
+                "a_only_successes": self.a_only, "b_only_successes": self.b_only}
 
     def line(self) -> str:
         return (f"{self.a} - {self.b}: {100 * self.difference:+.1f} points [{100 * self.low:+.1f}, "
                 f"{100 * self.high:+.1f}] over {self.episodes} paired episodes, {self.clusters} {self.unit}s "
-                f"resampled ({self.cells} cells): {self.verdict}")
+                f"resampled ({self.cells} cells): {self.verdict}; {self.a} alone succeeds in {self.a_only}, "
+                f"{self.b} alone in {self.b_only}")
 
 
 def paired_difference(a: str, cells_a: dict[tuple[str, int], CellOutcome], b: str,
@@ -78,6 +88,8 @@ def paired_difference(a: str, cells_a: dict[tuple[str, int], CellOutcome], b: st
     for key in keys:
         if cells_a[key].eval_seeds != cells_b[key].eval_seeds:
             raise ManifestError(f"{key[0]}, set {key[1]}: {a!r} and {b!r} ran different seeds; they cannot be paired")
+    pairs = [(x, y) for key in keys for x, y in zip(cells_a[key].successes, cells_b[key].successes, strict=True)]
+    a_only, b_only = sum(x and not y for x, y in pairs), sum(y and not x for x, y in pairs)
     clusters: dict[tuple, list[int]] = {}
     for key in keys:
         counts = clusters.setdefault(key[:1] if unit == "task" else key, [0, 0])
@@ -88,4 +100,4 @@ def paired_difference(a: str, cells_a: dict[tuple[str, int], CellOutcome], b: st
     low, high = cluster_bootstrap(lambda draws: differences[draws].sum(axis=1) / episodes[draws].sum(axis=1),
                                   len(clusters), resamples, seed)
     return PairedDifference(a, b, len(keys), int(episodes.sum()), float(differences.sum() / episodes.sum()),
-                            float(low), float(high), unit, len(clusters))
+                            float(low), float(high), unit, len(clusters), int(a_only), int(b_only))

@@ -451,6 +451,7 @@ def test_the_committed_metaworld_manifest_rederives_its_paired_differences(tmp_p
     (by_task,) = table["paired"]
     assert (by_task["difference"], by_task["ci95_low"], by_task["ci95_high"]) == pytest.approx(
         (-47 / 300, -0.293, -0.027), abs=5e-4)
+    assert by_task["b_only_successes"] - by_task["a_only_successes"] == 47
     assert by_task["unit"] == "task" and by_task["clusters"] == 10 and by_task["cells"] == 30
     assert table["overall"]["instant_policy"]["successes"] == 127
     assert eval_table([*arguments, "--paired-unit", "cell"]) == 0
@@ -510,12 +511,27 @@ def test_paired_difference_on_known_cases():
     b = {("t1", 0): cell("t1", [False, False]), ("t2", 0): cell("t2", [True, False])}
     difference = paired_difference("a", a, "b", b)
     assert difference.difference == 0.5 and (difference.low, difference.high) == (0.0, 1.0)
+    assert (difference.a_only, difference.b_only) == (2, 0)
     assert difference.verdict == "no difference shown" and difference.episodes == 4 and difference.cells == 2
     many_a = {(f"t{i}", 0): cell(f"t{i}", [True, True, False]) for i in range(8)}
     many_b = {(f"t{i}", 0): cell(f"t{i}", [True, False, False]) for i in range(8)}
     better = paired_difference("a", many_a, "b", many_b)
     assert better.low == better.high == pytest.approx(1 / 3) and better.verdict == "a beats b"
     assert paired_difference("b", many_b, "a", many_a).verdict == "a beats b"
+    assert (better.a_only, better.b_only) == (8, 0)
     shifted = {key: cell(key[0], [True, True, False], seed=2000) for key in many_a}
     with pytest.raises(ManifestError, match="different seeds"):
         paired_difference("a", shifted, "b", many_b)
+
+
+def test_the_discordant_episodes_show_what_a_level_difference_hides():
+    """Two columns level in Δ: one agreeing episode for episode, one trading three successes each way; the line
+    names both counts."""
+    a = {("t1", 0): cell("t1", [True, True, True, False, False, False])}
+    same = {("t1", 0): cell("t1", [True, True, True, False, False, False])}
+    traded = {("t1", 0): cell("t1", [False, False, False, True, True, True])}
+    agreeing, trading = paired_difference("a", a, "b", same), paired_difference("a", a, "b", traded)
+    assert agreeing.difference == trading.difference == 0.0
+    assert (agreeing.a_only, agreeing.b_only) == (0, 0) and (trading.a_only, trading.b_only) == (3, 3)
+    assert trading.line().endswith("a alone succeeds in 3, b alone in 3")
+    assert trading.as_json()["a_only_successes"] == trading.as_json()["b_only_successes"] == 3
