@@ -99,6 +99,7 @@ def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: Segm
     anchors: list[int] = []
     grasped: int | None = None
     grasp = 0
+    trees: list[cKDTree] = []  # the objects' k-d trees, built at the first grasp
     for end in ends:
         changed = end > 0 and opened[end] != opened[end - 1]
         releasing = changed and bool(opened[end])
@@ -106,7 +107,7 @@ def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: Segm
         nearest, distance = nearest_object(objects, actions[end, :3], exclude)
         if grasped is not None and not changed and end > grasp:
             T_moved = T_world_ee[end] @ np.linalg.inv(T_world_ee[grasp])  # the held object's motion since the grasp
-            held_nearest, held_distance = _nearest_to_held(objects, grasped, T_moved)
+            held_nearest, held_distance = _nearest_to_held(objects, trees, grasped, T_moved)
             if held_distance < distance:
                 nearest, distance = held_nearest, held_distance
         anchored = changed or distance <= config.anchor_radius
@@ -114,7 +115,8 @@ def anchor_segments(actions: np.ndarray, objects: list[np.ndarray], config: Segm
         if changed:
             grasped = None if releasing else nearest
             if grasped is not None:
-                grasp = _grasp_pose(actions[:, :3], opened, int(end), objects[grasped])
+                trees = trees or [cKDTree(points) for points in objects]
+                grasp = _grasp_pose(actions[:, :3], opened, int(end), trees[grasped])
     if max(anchors) < 0:
         return None
     return Segments(ends=ends, anchors=np.asarray(anchors, dtype=np.int64))
@@ -129,21 +131,22 @@ def nearest_object(objects: list[np.ndarray], position: np.ndarray, exclude: int
     return nearest, distances[nearest]
 
 
-def _grasp_pose(positions: np.ndarray, opened: np.ndarray, close: int, grasped: np.ndarray) -> int:
+def _grasp_pose(positions: np.ndarray, opened: np.ndarray, close: int, grasped: cKDTree) -> int:
     """The action from ``close`` up to the next gripper change whose EE position (``positions (F, 3)``) lies
-    nearest to the ``grasped (P, 3)`` cloud: where the object starts to move with the hand."""
+    nearest to the grasped cloud (its k-d tree): where the object starts to move with the hand."""
     change = np.flatnonzero(opened[close:] != opened[close])
     stop = close + int(change[0]) if len(change) else len(positions)
-    distances, _ = cKDTree(grasped).query(positions[close:stop])
+    distances, _ = grasped.query(positions[close:stop])
     return close + int(np.argmin(distances))
 
 
-def _nearest_to_held(objects: list[np.ndarray], grasped: int, T_moved: np.ndarray) -> tuple[int, float]:
+def _nearest_to_held(objects: list[np.ndarray], trees: list[cKDTree], grasped: int, T_moved: np.ndarray
+                     ) -> tuple[int, float]:
     """The object other than ``grasped`` nearest to the grasped cloud moved by ``T_moved (4, 4)`` (world frame, its
-    motion since the grasp pose), and that distance (m); ``(grasped, inf)`` with no other object."""
+    motion since the grasp pose), and that distance (m), read off the objects' k-d ``trees``; ``(grasped, inf)`` with
+    no other object."""
     held = transform_points(T_moved, objects[grasped])
-    distances = [np.inf if index == grasped else float(np.min(cKDTree(points).query(held)[0]))
-                 for index, points in enumerate(objects)]
+    distances = [np.inf if index == grasped else float(np.min(tree.query(held)[0])) for index, tree in enumerate(trees)]
     nearest = int(np.argmin(distances))
     return nearest, distances[nearest]
 
