@@ -1,0 +1,104 @@
+"""How much a replay loses because the suite's demonstrations stop at their first step in the goal state.
+
+``lerobot-ip-record-demos`` and the evaluations end a scripted demonstration at its first step in the goal state
+(``sim.recording``: the same sets serve the held and the instant criterion). A task whose goal is a threshold crossed
+mid-motion (``open_box``: the lid beyond 0.9 rad, which the scripted arc passes on its way to 1.1 rad) is then shown
+stopping just past it, and its replay in another scene ends on either side. For each demonstration seed set, two
+demonstrations are recorded in memory as the recording does (the scripted demonstrator, failed seeds skipped) and
+again run on to the end of the scripted actions (ended by the held criterion instead); each variant is replayed onto
+the same episode seeds (``replay.priors.plan_onto_live``, the plan executed by control step as ``demo_replay`` does).
+Prints one JSON line per episode (success of each variant; for the box tasks the lid's final angle, degrees), then
+the successes and the episodes only one variant succeeds in.
+
+    python -m workbench.scripts.demo_end_margin open_box --demo-seeds 0,100,200 --seeds 1000-1009 --plan consensus
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from lerobot_instant_policy.replay.plan import REPLAY_PLANS, ReplaySource
+from lerobot_instant_policy.replay.priors import plan_onto_live
+from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
+from lerobot_instant_policy.sim.rollout import run_episode
+
+VARIANTS = {"first_goal": "instant", "run_on": "held"}  # how a demonstration ends → the success criterion ending it
+
+
+def seed_list(text: str) -> list[int]:
+    """``"1000-1009"`` or ``"0,100,200"`` → the seeds."""
+    if "-" in text:
+        first, last = (int(x) for x in text.split("-"))
+        return list(range(first, last + 1))
+    return [int(x) for x in text.split(",")]
+
+
+def scripted_sources(task: str, first_seed: int, count: int, success: str, max_attempts: int = 5
+                     ) -> list[ReplaySource]:
+    """``count`` successful scripted demonstrations from ``first_seed`` on, each ended by the ``success`` criterion
+    (``instant``: its first step in the goal state, as ``sim.recording`` records)."""
+    env = BulletTabletopEnv(task, BulletTabletopConfig(success=success))
+    try:
+        sources, seed = [], first_seed
+        while len(sources) < count and seed < first_seed + max_attempts * count:
+            episode = run_episode(env, seed, "scripted")
+            if episode.success:
+                sources.append(ReplaySource(episode.points[0], episode.action))
+            seed += 1
+    finally:
+        env.close()
+    if len(sources) < count:
+        raise RuntimeError(f"the scripted demonstrator of {task!r} failed from seed {first_seed} on")
+    return sources
+
+
+def replay(env: BulletTabletopEnv, task: str, sources: list[ReplaySource], plan_name: str, seed: int) -> dict:
+    """One episode of ``seed`` executing the ``plan_name`` plan of ``sources`` by control step."""
+    observation, _ = env.reset(seed=seed)
+    plan = plan_onto_live(task, sources, observation["pointcloud"], plan_name).actions
+    info = {}
+    for step in range(env._max_episode_steps):
+        observation, _, terminated, truncated, info = env.step(plan[min(step, len(plan) - 1)])
+        if terminated or truncated:
+            break
+    row = {"success": bool(info.get("is_success")), "plan_steps": len(plan)}
+    if hasattr(env.task_impl, "angle"):
+        row["end_deg"] = round(float(np.degrees(env.task_impl.angle(env.scene))), 1)
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("task", help="a bullet_tabletop task")
+    parser.add_argument("--demo-seeds", type=seed_list, default=seed_list("0,100,200"),
+                        help="each set's first demonstration seed (the dev split's sets)")
+    parser.add_argument("--num-demos", type=int, default=2)
+    parser.add_argument("--seeds", type=seed_list, default=seed_list("1000-1009"), help="episode seeds per set")
+    parser.add_argument("--plan", choices=REPLAY_PLANS, default="consensus")
+    args = parser.parse_args()
+
+    env = BulletTabletopEnv(args.task, BulletTabletopConfig(render_size=(64, 64)))
+    totals = {variant: 0 for variant in VARIANTS}
+    only = {variant: 0 for variant in VARIANTS}
+    try:
+        for demo_seed in args.demo_seeds:
+            sources = {variant: scripted_sources(args.task, demo_seed, args.num_demos, success)
+                       for variant, success in VARIANTS.items()}
+            for seed in args.seeds:
+                rows = {variant: replay(env, args.task, sources[variant], args.plan, seed) for variant in VARIANTS}
+                print(json.dumps({"demo_seed": demo_seed, "seed": seed, **rows}), flush=True)
+                for variant, row in rows.items():
+                    totals[variant] += row["success"]
+                    only[variant] += row["success"] and not any(other["success"] for name, other in rows.items()
+                                                                if name != variant)
+    finally:
+        env.close()
+    print(json.dumps({"episodes": len(args.demo_seeds) * len(args.seeds), "successes": totals,
+                      "only_this_variant_succeeds": only}))
+
+
+if __name__ == "__main__":
+    main()
