@@ -23,6 +23,10 @@ the observation repeats the last cloud (``info["pointcloud_rendered"]`` says whi
 which ``instant_policy`` reads an observation when k is its ``n_action_steps`` (it runs k queued actions, and
 predicts again after an action that changes the gripper command); ``demo_replay`` reads the first only, and
 ``do_nothing`` and ``metaworld_expert`` never read the cloud. ``k = 1`` (the default) renders every step.
+A rendering in which no camera sees a task object or goal marker (all of them hidden by the hand, or sunk into a
+hole below the table's surface) keeps the last cloud, as a camera that loses sight of the scene leaves a policy its
+last view (``info["pointcloud_rendered"]`` is then false); at reset, with no view yet, it raises
+:class:`~.cameras.EmptyCloudError`.
 
 Goals: MetaWorld hides the goal of ``reach``, ``push``, ``pick-place`` … from a camera-only policy unless it is
 drawn; the cloud keeps the task's target sites (the spheres MetaWorld draws at ``_target_site_config``), so every
@@ -45,7 +49,7 @@ from lerobot.envs.metaworld import MetaworldEnv  # noqa: E402
 
 from ...contract import NUM_POINTS, POSE_GRIPPER_SHAPE  # noqa: E402
 from . import actions  # noqa: E402
-from .cameras import CameraSettings, SegmentedDepthCameras  # noqa: E402
+from .cameras import CameraSettings, EmptyCloudError, SegmentedDepthCameras  # noqa: E402
 from .scenery import task_object_geoms  # noqa: E402
 
 ENVIRONMENT_STATE_SHAPE = (39,)
@@ -78,6 +82,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         self.render_size = render_size
         self._cloud: np.ndarray | None = None  # the last rendered cloud (None: render at the next observation)
         self._cloud_due = False
+        self._cloud_hidden = False  # the last rendering saw no task object, so the cloud before it was kept
         self._steps_since_cloud = 0
         self.camera_settings = cameras or CameraSettings()
         self.task_description = self.task
@@ -132,7 +137,7 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         observation, reward, terminated, truncated, info = super().step(command)
         truncated = truncated or (not terminated and env.curr_path_length >= self._max_episode_steps)
         info["metaworld_action"] = command
-        info["pointcloud_rendered"] = rendered
+        info["pointcloud_rendered"] = rendered and not self._cloud_hidden
         return observation, reward, terminated, truncated, info
 
     def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, np.ndarray]:
@@ -142,8 +147,14 @@ class MetaworldPointCloudEnv(MetaworldEnv):
         # goals until the first step: place them as its step does before the cameras draw them.
         for site, position in self._env._target_site_config:
             self._env._set_pos_site(site, position)
+        self._cloud_hidden = False
         if self._cloud is None or self._cloud_due:
-            self._cloud = self.cameras.cloud(self._env.data, self.num_points, self._cloud_rng)
+            try:
+                self._cloud = self.cameras.cloud(self._env.data, self.num_points, self._cloud_rng)
+            except EmptyCloudError:
+                if self._cloud is None:
+                    raise
+                self._cloud_hidden = True  # every object out of sight: the last cloud stands (module docstring)
             self._steps_since_cloud = 0
         else:
             self._steps_since_cloud += 1

@@ -333,6 +333,33 @@ def test_cloud_is_rendered_on_the_steps_instant_policy_reads():
     np.testing.assert_array_equal(clouds[1], clouds[0])  # repeated between renderings
 
 
+def test_a_rendering_that_sees_nothing_keeps_the_last_cloud_and_a_reset_that_sees_nothing_raises(monkeypatch):
+    """Every object hidden mid-episode (the hand over them, a puck sunk into its hole) leaves the policy its last
+    view instead of ending the evaluation; at reset there is no view to keep."""
+    _metaworld_or_skip()
+    from lerobot_instant_policy.sim.metaworld.cameras import EmptyCloudError
+    from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
+
+    env = MetaworldPointCloudEnv("reach-v3", pointcloud_every=1, render_size=64)
+    try:
+        observation, _ = env.reset(seed=0)
+        seen = observation["pointcloud"]
+        action = observation["agent_pos"].copy()
+        action[0] += 0.01
+        with monkeypatch.context() as patch:
+            patch.setattr(env.cameras, "points", lambda data: np.zeros((0, 3), dtype=np.float32))
+            observation, _, _, _, info = env.step(action)
+            assert not info["pointcloud_rendered"]
+            np.testing.assert_array_equal(observation["pointcloud"], seen)
+            with pytest.raises(EmptyCloudError, match="sees a task object"):
+                env.reset(seed=1)
+        observation, _ = env.reset(seed=0)
+        observation, _, _, _, info = env.step(action)
+        assert info["pointcloud_rendered"] and len(observation["pointcloud"]) == env.num_points
+    finally:
+        env.close()
+
+
 def test_render_size_sets_the_video_frames_and_changes_no_observation():
     _metaworld_or_skip()
     from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
