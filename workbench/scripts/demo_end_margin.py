@@ -6,11 +6,13 @@ mid-motion (``open_box``: the lid beyond 0.9 rad, which the scripted arc passes 
 stopping just past it, and its replay in another scene ends on either side. For each demonstration seed set, two
 demonstrations are recorded in memory as the recording does (the scripted demonstrator, failed seeds skipped) and
 again run on to the end of the scripted actions (ended by the held criterion instead); each variant is replayed onto
-the same episode seeds (``replay.priors.plan_onto_live``, the plan executed by control step as ``demo_replay`` does).
-Prints one JSON line per episode (success of each variant; for the box tasks the lid's final angle, degrees), then
-the successes and the episodes only one variant succeeds in.
+the same episode seeds (``replay.priors.plan_onto_live``, the plan executed by control step as ``demo_replay`` does),
+and with ``--policy-path`` an ``instant_policy`` checkpoint is run on them too, handed each variant's demonstrations
+(``set_demonstrations``) and denoising from the same plan. Prints one JSON line per episode (success of each variant;
+for the box tasks the lid's final angle, degrees), then the successes and the episodes only one variant succeeds in.
 
-    python -m workbench.scripts.demo_end_margin open_box --demo-seeds 0,100,200 --seeds 1000-1009 --plan consensus
+    python -m workbench.scripts.demo_end_margin open_box --demo-seeds 0,100,200 --seeds 1000-1009 --plan consensus \
+        [--policy-path lerobot_instant_policy/assets/checkpoints/instant_policy_replay_prior]
 """
 
 from __future__ import annotations
@@ -19,7 +21,12 @@ import argparse
 import json
 
 import numpy as np
+import torch
 
+from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
+from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.data.demonstrations import Demonstration
+from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 from lerobot_instant_policy.replay.plan import REPLAY_PLANS, ReplaySource
 from lerobot_instant_policy.replay.priors import plan_onto_live
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
@@ -36,8 +43,8 @@ def seed_list(text: str) -> list[int]:
     return [int(x) for x in text.split(",")]
 
 
-def scripted_sources(task: str, first_seed: int, count: int, success: str, max_attempts: int = 5
-                     ) -> list[ReplaySource]:
+def scripted_demonstrations(task: str, first_seed: int, count: int, success: str, max_attempts: int = 5
+                            ) -> list[Demonstration]:
     """``count`` successful scripted demonstrations from ``first_seed`` on, each ended by the ``success`` criterion
     (``instant``: its first step in the goal state, as ``sim.recording`` records)."""
     env = BulletTabletopEnv(task, BulletTabletopConfig(success=success))
@@ -46,7 +53,7 @@ def scripted_sources(task: str, first_seed: int, count: int, success: str, max_a
         while len(sources) < count and seed < first_seed + max_attempts * count:
             episode = run_episode(env, seed, "scripted")
             if episode.success:
-                sources.append(ReplaySource(episode.points[0], episode.action))
+                sources.append(Demonstration(episode.points, episode.state, episode.action, task))
             seed += 1
     finally:
         env.close()
@@ -55,13 +62,25 @@ def scripted_sources(task: str, first_seed: int, count: int, success: str, max_a
     return sources
 
 
-def replay(env: BulletTabletopEnv, task: str, sources: list[ReplaySource], plan_name: str, seed: int) -> dict:
-    """One episode of ``seed`` executing the ``plan_name`` plan of ``sources`` by control step."""
+def run(env: BulletTabletopEnv, task: str, demonstrations: list[Demonstration], plan_name: str, seed: int,
+        policy: InstantPolicyPolicy | None = None) -> dict:
+    """One episode of ``seed``: the ``plan_name`` plan of ``demonstrations`` executed by control step, or
+    ``policy`` handed them."""
     observation, _ = env.reset(seed=seed)
-    plan = plan_onto_live(task, sources, observation["pointcloud"], plan_name).actions
+    plan = plan_onto_live(task, [ReplaySource.of(demo) for demo in demonstrations], observation["pointcloud"],
+                          plan_name).actions
+    if policy is not None:
+        policy.set_demonstrations(demonstrations)
+        torch.manual_seed(seed)
     info = {}
     for step in range(env._max_episode_steps):
-        observation, _, terminated, truncated, info = env.step(plan[min(step, len(plan) - 1)])
+        if policy is None:
+            action = plan[min(step, len(plan) - 1)]
+        else:
+            batch = {POINTCLOUD_KEY: torch.from_numpy(observation["pointcloud"])[None].float(),
+                     STATE_KEY: torch.from_numpy(observation["agent_pos"])[None].float(), "task": [task]}
+            action = policy.select_action(batch)[0].numpy()
+        observation, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
     row = {"success": bool(info.get("is_success")), "plan_steps": len(plan)}
@@ -78,22 +97,36 @@ def main() -> None:
     parser.add_argument("--num-demos", type=int, default=2)
     parser.add_argument("--seeds", type=seed_list, default=seed_list("1000-1009"), help="episode seeds per set")
     parser.add_argument("--plan", choices=REPLAY_PLANS, default="consensus")
+    parser.add_argument("--policy-path", help="an instant_policy pretrained_model directory, run beside the replay "
+                                              "from the same plan (its own strength and K)")
     args = parser.parse_args()
+    torch.set_num_threads(1)
 
+    policy = None
+    if args.policy_path:
+        config = InstantPolicyConfig.from_pretrained(args.policy_path)
+        config.device = "cpu"
+        config.replay_per_object, config.replay_anchored, config.replay_consensus = (
+            args.plan == "per_object", args.plan == "anchored", args.plan == "consensus")
+        policy = InstantPolicyPolicy.from_pretrained(args.policy_path, config=config).eval()
+    runners = {"replay": None, **({"policy": policy} if policy is not None else {})}
+    columns = [f"{runner}/{variant}" for runner in runners for variant in VARIANTS]
     env = BulletTabletopEnv(args.task, BulletTabletopConfig(render_size=(64, 64)))
-    totals = {variant: 0 for variant in VARIANTS}
-    only = {variant: 0 for variant in VARIANTS}
+    totals = {column: 0 for column in columns}
+    only = {column: 0 for column in columns}
     try:
         for demo_seed in args.demo_seeds:
-            sources = {variant: scripted_sources(args.task, demo_seed, args.num_demos, success)
-                       for variant, success in VARIANTS.items()}
+            demonstrations = {variant: scripted_demonstrations(args.task, demo_seed, args.num_demos, success)
+                              for variant, success in VARIANTS.items()}
             for seed in args.seeds:
-                rows = {variant: replay(env, args.task, sources[variant], args.plan, seed) for variant in VARIANTS}
+                rows = {f"{name}/{variant}": run(env, args.task, demonstrations[variant], args.plan, seed, runner)
+                        for name, runner in runners.items() for variant in VARIANTS}
                 print(json.dumps({"demo_seed": demo_seed, "seed": seed, **rows}), flush=True)
-                for variant, row in rows.items():
-                    totals[variant] += row["success"]
-                    only[variant] += row["success"] and not any(other["success"] for name, other in rows.items()
-                                                                if name != variant)
+                for column, row in rows.items():  # "only": against the other variant of the same runner
+                    runner = column.split("/")[0]
+                    others = [other for name, other in rows.items() if name != column and name.startswith(runner)]
+                    totals[column] += row["success"]
+                    only[column] += row["success"] and not any(other["success"] for other in others)
     finally:
         env.close()
     print(json.dumps({"episodes": len(args.demo_seeds) * len(args.seeds), "successes": totals,
