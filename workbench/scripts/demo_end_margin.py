@@ -23,24 +23,15 @@ import json
 import numpy as np
 import torch
 
-from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import Demonstration
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 from lerobot_instant_policy.replay.plan import REPLAY_PLANS, ReplaySource
 from lerobot_instant_policy.replay.priors import plan_onto_live
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
 from lerobot_instant_policy.sim.rollout import run_episode
+from workbench.replay_episodes import episode_action, replay_policy, seed_list
 
 VARIANTS = {"first_goal": "instant", "run_on": "held"}  # how a demonstration ends → the success criterion ending it
-
-
-def seed_list(text: str) -> list[int]:
-    """``"1000-1009"`` or ``"0,100,200"`` → the seeds."""
-    if "-" in text:
-        first, last = (int(x) for x in text.split("-"))
-        return list(range(first, last + 1))
-    return [int(x) for x in text.split(",")]
 
 
 def scripted_demonstrations(task: str, first_seed: int, count: int, success: str, max_attempts: int = 5
@@ -74,12 +65,7 @@ def run(env: BulletTabletopEnv, task: str, demonstrations: list[Demonstration], 
         torch.manual_seed(seed)
     info = {}
     for step in range(env._max_episode_steps):
-        if policy is None:
-            action = plan[min(step, len(plan) - 1)]
-        else:
-            batch = {POINTCLOUD_KEY: torch.from_numpy(observation["pointcloud"])[None].float(),
-                     STATE_KEY: torch.from_numpy(observation["agent_pos"])[None].float(), "task": [task]}
-            action = policy.select_action(batch)[0].numpy()
+        action = episode_action(policy, plan, step, observation, task)
         observation, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
@@ -102,13 +88,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    policy = None
-    if args.policy_path:
-        config = InstantPolicyConfig.from_pretrained(args.policy_path)
-        config.device = "cpu"
-        config.replay_per_object, config.replay_anchored, config.replay_consensus = (
-            args.plan == "per_object", args.plan == "anchored", args.plan == "consensus")
-        policy = InstantPolicyPolicy.from_pretrained(args.policy_path, config=config).eval()
+    policy = replay_policy(args.policy_path, args.plan) if args.policy_path else None
     runners = {"replay": None, **({"policy": policy} if policy is not None else {})}
     columns = [f"{runner}/{variant}" for runner in runners for variant in VARIANTS]
     env = BulletTabletopEnv(args.task, BulletTabletopConfig(render_size=(64, 64)))

@@ -26,23 +26,14 @@ import json
 import numpy as np
 import torch
 
-from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 from lerobot_instant_policy.replay.plan import REPLAY_PLANS
 from lerobot_instant_policy.replay.priors import plan_onto_live
 from lerobot_instant_policy.sim.metaworld.env import MetaworldPointCloudEnv
+from workbench.replay_episodes import episode_action, replay_policy, seed_list
 
 LIFTED_M = 0.02  # the object counts as lifted once it rises this far above its first height
-
-
-def seed_range(text: str) -> list[int]:
-    """``"1000-1009"`` or ``"1000,1004"`` → the seeds."""
-    if "-" in text:
-        first, last = (int(x) for x in text.split("-"))
-        return list(range(first, last + 1))
-    return [int(x) for x in text.split(",")]
 
 
 def run_episode(env: MetaworldPointCloudEnv, seed: int, task: str, demonstrations, plan_name: str,
@@ -55,12 +46,7 @@ def run_episode(env: MetaworldPointCloudEnv, seed: int, task: str, demonstration
         torch.manual_seed(seed)
     ee, obj, close, info = [], [], [], {}
     for step in range(env._max_episode_steps):
-        if policy is None:
-            action = plan[min(step, len(plan) - 1)]
-        else:
-            batch = {POINTCLOUD_KEY: torch.from_numpy(observation["pointcloud"])[None].float(),
-                     STATE_KEY: torch.from_numpy(observation["agent_pos"])[None].float(), "task": [task]}
-            action = policy.select_action(batch)[0].numpy()
+        action = episode_action(policy, plan, step, observation, task)
         ee.append(observation["agent_pos"][:3].copy())
         obj.append(observation["environment_state"][4:7].copy())
         close.append(bool(action[7] < 0.5))
@@ -98,7 +84,7 @@ def main() -> None:
     parser.add_argument("demos", help="the demonstration dataset's root (repo id local/<task>)")
     parser.add_argument("--policy-path", help="an instant_policy pretrained_model directory (none: the replay only)")
     parser.add_argument("--plan", choices=REPLAY_PLANS, default="consensus")
-    parser.add_argument("--seeds", type=seed_range, default=seed_range("1000-1009"))
+    parser.add_argument("--seeds", type=seed_list, default=seed_list("1000-1009"))
     parser.add_argument("--num-demos", type=int, default=2)
     parser.add_argument("--pointcloud-every", type=int, default=8, help="as the evaluations run MetaWorld")
     args = parser.parse_args()
@@ -107,12 +93,8 @@ def main() -> None:
     demonstrations = load_demonstrations(f"local/{args.task}", args.demos, args.task, args.num_demos)
     policy = None
     if args.policy_path:
-        config = InstantPolicyConfig.from_pretrained(args.policy_path)
-        config.demo_repo_id, config.demo_root, config.num_demos, config.device = (
-            f"local/{args.task}", args.demos, args.num_demos, "cpu")
-        config.replay_per_object, config.replay_anchored, config.replay_consensus = (
-            args.plan == "per_object", args.plan == "anchored", args.plan == "consensus")
-        policy = InstantPolicyPolicy.from_pretrained(args.policy_path, config=config).eval()
+        policy = replay_policy(args.policy_path, args.plan, demo_repo_id=f"local/{args.task}", demo_root=args.demos,
+                               num_demos=args.num_demos)
     env = MetaworldPointCloudEnv(args.task, pointcloud_every=args.pointcloud_every, render_size=64)
     modes = {"replay": None, **({"policy": policy} if policy is not None else {})}
     rows = {mode: [] for mode in modes}

@@ -19,13 +19,11 @@ import json
 import numpy as np
 import torch
 
-from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
-from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
 from lerobot_instant_policy.data.demonstrations import load_demonstrations
-from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
 from lerobot_instant_policy.replay.plan import REPLAY_PLANS
 from lerobot_instant_policy.replay.priors import plan_onto_live
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
+from workbench.replay_episodes import episode_action, replay_policy
 
 
 def main() -> None:
@@ -43,26 +41,18 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    config = InstantPolicyConfig.from_pretrained(args.checkpoint)
-    config.demo_repo_id, config.demo_root, config.num_demos, config.device = (
-        f"local/{args.task}", args.demos, args.num_demos, "cpu")
-    config.replay_init_strength = args.strength
-    config.replay_anchored, config.replay_per_object, config.replay_consensus = (
-        args.plan == "anchored", args.plan == "per_object", args.plan == "consensus")
-    if args.inference_steps:
-        config.inference_steps = args.inference_steps
-    policy = InstantPolicyPolicy.from_pretrained(args.checkpoint, config=config).eval()
+    fields = {"inference_steps": args.inference_steps} if args.inference_steps else {}
+    policy = replay_policy(args.checkpoint, args.plan, demo_repo_id=f"local/{args.task}", demo_root=args.demos,
+                           num_demos=args.num_demos, replay_init_strength=args.strength, **fields)
     policy.reset()
-    demonstrations = load_demonstrations(config.demo_repo_id, args.demos, args.task, args.num_demos)
+    demonstrations = load_demonstrations(f"local/{args.task}", args.demos, args.task, args.num_demos)
     env = BulletTabletopEnv(args.task, BulletTabletopConfig(render_size=(64, 64)))
     observation, _ = env.reset(seed=args.seed)
-    plan = plan_onto_live(args.task, demonstrations, observation["pointcloud"], config.replay_plan()).actions
+    plan = plan_onto_live(args.task, demonstrations, observation["pointcloud"], args.plan).actions
     reached = np.concatenate([observation["agent_pos"][None, :3], plan[:-1, :3]])  # (G, 3): the pose at each step
     rows, info = [], {}
     for step in range(env._max_episode_steps):
-        batch = {POINTCLOUD_KEY: torch.from_numpy(observation["pointcloud"])[None].float(),
-                 STATE_KEY: torch.from_numpy(observation["agent_pos"])[None].float(), "task": [args.task]}
-        action = policy.select_action(batch)[0].numpy()
+        action = episode_action(policy, plan, step, observation, args.task)
         last = len(plan) - 1  # past the plan's end its last action holds
         window = np.arange(min(max(step - args.window, 0), last), min(step + args.window, last) + 1)
         distances = np.linalg.norm(reached[window] - observation["agent_pos"][:3], axis=1)
