@@ -24,8 +24,8 @@ which ``instant_policy`` reads an observation when k is its ``n_action_steps`` (
 predicts again after an action that changes the gripper command); ``demo_replay`` reads the first only, and
 ``do_nothing`` and ``metaworld_expert`` never read the cloud. ``k = 1`` (the default) renders every step.
 A rendering in which no camera sees a task object or goal marker (the hand over all of them, say) keeps the last
-cloud, as a camera that loses sight of the scene leaves a policy its last view (``info["pointcloud_rendered"]`` is then false); at reset, with no view yet, it raises
-:class:`~.cameras.EmptyCloudError`.
+cloud, as a camera that loses sight of the scene leaves a policy its last view (``info["pointcloud_rendered"]`` is
+then false); at reset, with no view yet, it raises :class:`~.cameras.EmptyCloudError`.
 
 Goals: MetaWorld hides the goal of ``reach``, ``push``, ``pick-place`` … from a camera-only policy unless it is
 drawn; the cloud keeps the task's target sites (the spheres MetaWorld draws at ``_target_site_config``), so every
