@@ -18,6 +18,13 @@ pose; the rotation is the smaller of the two a parallel gripper cannot tell apar
 approach axis, EE z, it grasps alike). :func:`error_quantiles` pools them into the median and 90th percentile per kind,
 and counts the wrong plans (:func:`~..replay.segments.plan_is_wrong`: off by 30 mm or more at a gripper change
 or the end, or missing a gripper change), the criterion the stream also judges its training priors by.
+
+The prior itself is measured as the network is trained against it: at every live frame ``t`` the ``T`` planned
+actions read at the plan step the live demonstration has reached (:func:`~..replay.priors.replay_priors` at
+:func:`~..replay.timing.plan_steps`, as the stream reads a training prior) against the live actions ``t … t + T − 1``,
+the mean translation over the chunk, beside holding the live state still. :func:`error_quantiles` reports their ratio
+(``prior_vs_holding_still``) over every frame and per third of the live episode: a demonstrator's free approach from
+its own start pose falls in the first third.
 """
 
 from __future__ import annotations
@@ -29,19 +36,23 @@ import numpy as np
 from ..contract import poses_from_vectors
 from ..data.demonstrations import Demonstration
 from ..geometry.se3 import pose_distance, rotation_angle
-from ..replay.priors import plan_onto_live
+from ..replay.plan import ReplayPlan
+from ..replay.priors import plan_onto_live, replay_priors
 from ..replay.segments import gripper_change_kinds, plan_is_wrong, segment_ends
 from ..replay.timing import plan_steps
 
 BOTTLENECK_KINDS = ("gripper", "waypoint", "end")
+THIRDS = ("first_third", "middle_third", "last_third")  # of the live episode, by frame
 HALF_TURN_ABOUT_Z = np.diag([-1.0, -1.0, 1.0])  # the parallel gripper's symmetry, in the EE frame
 
 
-def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str) -> dict:
+def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str, horizon: int = 8) -> dict:
     """The error of the ``plan`` replay of ``context`` in ``live``'s scene at ``live``'s bottleneck poses (module
     docstring): ``{"bottlenecks": [{"frame", "kind", "translation_m", "rotation_rad"}, ...], "missed": int,
-    "wrong": bool, "demo_index": int}`` (``wrong``: :func:`~..replay.segments.plan_is_wrong`; ``demo_index``:
-    the context demonstration the plan replays)."""
+    "wrong": bool, "demo_index": int, "chunks": {"prior_m", "hold_m"}}`` (``wrong``:
+    :func:`~..replay.segments.plan_is_wrong`; ``demo_index``: the context demonstration the plan replays;
+    ``chunks``: ``(F,)`` each, the mean translation over the ``horizon`` actions ahead of every live frame of the
+    prior read there and of holding the live state)."""
     replay = plan_onto_live(live.task, list(context), live.points_world[0], plan)
     planned = replay.actions.astype(np.float64)
     live_action = live.action.astype(np.float64)
@@ -66,7 +77,20 @@ def plan_error(context: Sequence[Demonstration], live: Demonstration, plan: str)
         rotation = min(rotation, rotation_angle(T_planned[:3, :3] @ HALF_TURN_ABOUT_Z, T_live[:3, :3]))
         rows.append({"frame": end, "kind": kind, "translation_m": float(translation), "rotation_rad": float(rotation)})
     return {"bottlenecks": rows, "missed": missed, "wrong": plan_is_wrong(planned, live_action),
-            "demo_index": replay.demo_index}
+            "demo_index": replay.demo_index, "chunks": chunk_errors(replay, aligned, live, horizon)}
+
+
+def chunk_errors(replay: ReplayPlan, aligned: np.ndarray, live: Demonstration, horizon: int) -> dict:
+    """``{"prior_m", "hold_m"}``, ``(F,)`` each: at every frame of ``live``, the mean distance (m) over the live
+    actions ``t … t + horizon − 1`` (the last one held) of the prior read at plan step ``aligned[t]`` and of the
+    live state ``t``."""
+    frames = len(live.action)
+    ahead = np.minimum(np.arange(frames)[:, None] + np.arange(horizon), frames - 1)  # (F, T)
+    targets = live.action[ahead, :3].astype(np.float64)
+    priors = replay_priors(replay, aligned, horizon)[..., :3].astype(np.float64)
+    hold = live.state[:, None, :3].astype(np.float64)
+    return {"prior_m": np.linalg.norm(priors - targets, axis=-1).mean(axis=-1),
+            "hold_m": np.linalg.norm(hold - targets, axis=-1).mean(axis=-1)}
 
 
 def error_quantiles(errors: Sequence[dict]) -> dict:
@@ -88,10 +112,32 @@ def error_quantiles(errors: Sequence[dict]) -> dict:
 
     result = {"all": summary(rows)}
     result.update({kind: summary([row for row in rows if row["kind"] == kind]) for kind in BOTTLENECK_KINDS})
+    result["prior_vs_holding_still"] = prior_ratios(errors)
     result["missed_gripper_changes"] = int(sum(error["missed"] for error in errors))
     result["plans"] = len(errors)
     result["wrong_plans"] = sum(error["wrong"] for error in errors)
     return result
 
 
-__all__ = ["BOTTLENECK_KINDS", "error_quantiles", "plan_error"]
+def prior_ratios(errors: Sequence[dict]) -> dict:
+    """The prior's chunk error over holding still (the sums over frames of :func:`chunk_errors`), over every frame
+    (``all``) and per third of each live episode (:data:`THIRDS`), with the frames counted."""
+    prior, hold, third = [], [], []
+    for error in errors:
+        frames = len(error["chunks"]["prior_m"])
+        prior.append(error["chunks"]["prior_m"])
+        hold.append(error["chunks"]["hold_m"])
+        third.append(np.minimum(len(THIRDS) * np.arange(frames) // frames, len(THIRDS) - 1))
+    if not prior:
+        return {"frames": 0}
+    prior, hold, third = np.concatenate(prior), np.concatenate(hold), np.concatenate(third)
+
+    def ratio(selected: np.ndarray) -> float | None:
+        return round(float(prior[selected].sum() / hold[selected].sum()), 3) if hold[selected].sum() > 0 else None
+
+    result = {"frames": len(prior), "all": ratio(np.ones(len(prior), dtype=bool))}
+    result.update({name: ratio(third == index) for index, name in enumerate(THIRDS)})
+    return result
+
+
+__all__ = ["BOTTLENECK_KINDS", "THIRDS", "chunk_errors", "error_quantiles", "plan_error", "prior_ratios"]

@@ -10,7 +10,7 @@ from synthetic_demos import carry_demo, object_pose
 
 from lerobot_instant_policy.contract import poses_from_vectors, vectors_from_poses
 from lerobot_instant_policy.data.demonstrations import Demonstration
-from lerobot_instant_policy.evaluation.replay_error import error_quantiles, plan_error
+from lerobot_instant_policy.evaluation.replay_error import THIRDS, error_quantiles, plan_error
 
 DEMO_SCENE = (object_pose(0.45, 0.10, 0.0), object_pose(0.55, -0.12, 0.0))
 LIVE_SCENE = (object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0))
@@ -61,3 +61,16 @@ def test_a_gripper_change_the_plan_lacks_is_missed(context_and_live):
     assert all(row["kind"] != "gripper" for row in error["bottlenecks"])
     assert error_quantiles([error])["gripper"] == {"count": 0}
     assert error_quantiles([error])["wrong_plans"] == 1  # a plan that never grasps is wrong wherever it goes
+
+
+def test_the_prior_is_measured_as_training_reads_it_per_third_of_the_live_episode(context_and_live):
+    context, live = context_and_live
+    itself = error_quantiles([plan_error([live], live, "whole")])["prior_vs_holding_still"]
+    assert itself["frames"] == len(live.action)
+    assert all(itself[name] < 0.01 for name in ("all", *THIRDS))  # its own plan is its actions, registered onto itself
+    anchored = error_quantiles([plan_error(context, live, "anchored")])["prior_vs_holding_still"]
+    whole = error_quantiles([plan_error(context, live, "whole")])["prior_vs_holding_still"]
+    assert 0.0 < anchored["all"] < 0.5  # near the live actions, far nearer than holding still
+    assert whole["last_third"] > 2 * anchored["last_third"]  # one motion carries the object to the wrong place
+    chunks = plan_error(context, live, "anchored", horizon=4)["chunks"]
+    assert chunks["prior_m"].shape == chunks["hold_m"].shape == (len(live.action),)

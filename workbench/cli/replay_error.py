@@ -15,7 +15,8 @@ With ``--pseudo-tasks N``, ``DEMOS`` is one pseudo-demonstration dataset (``lero
 episodes share its ``task`` string) and its first ``N`` tasks are measured as training plans its replay prior: the
 last episode is the live demonstration, the first ``--context`` episodes (1, as the stream plans the prior) the
 context. Printed beside a suite's figures, the two say whether the priors a corrector trains on err as the replays
-it meets do.
+it meets do: at the bottlenecks, and as the training loss sees them (``prior_vs_holding_still``, per third of the
+live episode).
 """
 
 from __future__ import annotations
