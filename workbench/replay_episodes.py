@@ -1,6 +1,6 @@
 """What the workbench's episode probes share: the replay executed by control step beside ``instant_policy`` run from
 that replay's prior, on the same seeds (``workbench/scripts/plan_timing.py``, ``grasp_timing.py``,
-``demo_end_margin.py``)."""
+``demo_end_margin.py``, ``lid_grasp.py``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,11 @@ import torch
 
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.contract import POINTCLOUD_KEY, STATE_KEY
+from lerobot_instant_policy.data.demonstrations import Demonstration
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
+from lerobot_instant_policy.replay.plan import ReplaySource
+from lerobot_instant_policy.replay.priors import plan_onto_live
+from lerobot_instant_policy.sim.env import BulletTabletopEnv
 
 
 def seed_list(text: str) -> list[int]:
@@ -33,6 +37,20 @@ def replay_policy(checkpoint: str | Path, plan: str, **fields) -> InstantPolicyP
     for name, value in fields.items():
         setattr(config, name, value)
     return InstantPolicyPolicy.from_pretrained(checkpoint, config=config).eval()
+
+
+def start_episode(env: BulletTabletopEnv, task: str, demonstrations: list[Demonstration], plan: str, seed: int,
+                  policy: InstantPolicyPolicy | None = None) -> tuple[dict, np.ndarray]:
+    """Reset the suite's ``env`` to episode ``seed``: its first observation and the ``plan`` replay ``(G, 8)`` of
+    ``demonstrations`` onto its first cloud, made as the policy makes it; ``policy``, if given, is handed the
+    demonstrations (which starts its episode) and torch's generator seeded with ``seed``."""
+    observation, _ = env.reset(seed=seed)
+    planned = plan_onto_live(task, [ReplaySource.of(demo) for demo in demonstrations], observation["pointcloud"],
+                             plan).actions
+    if policy is not None:
+        policy.set_demonstrations(demonstrations)
+        torch.manual_seed(seed)
+    return observation, planned
 
 
 def episode_action(policy: InstantPolicyPolicy | None, plan: np.ndarray, step: int, observation: dict, task: str

@@ -25,11 +25,10 @@ import torch
 
 from lerobot_instant_policy.data.demonstrations import Demonstration
 from lerobot_instant_policy.modeling_instant_policy import InstantPolicyPolicy
-from lerobot_instant_policy.replay.plan import REPLAY_PLANS, ReplaySource
-from lerobot_instant_policy.replay.priors import plan_onto_live
+from lerobot_instant_policy.replay.plan import REPLAY_PLANS
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
 from lerobot_instant_policy.sim.rollout import run_episode
-from workbench.replay_episodes import episode_action, replay_policy, seed_list
+from workbench.replay_episodes import episode_action, replay_policy, seed_list, start_episode
 
 VARIANTS = {"first_goal": "instant", "run_on": "held"}  # how a demonstration ends → the success criterion ending it
 
@@ -57,12 +56,7 @@ def run(env: BulletTabletopEnv, task: str, demonstrations: list[Demonstration], 
         policy: InstantPolicyPolicy | None = None) -> dict:
     """One episode of ``seed``: the ``plan_name`` plan of ``demonstrations`` executed by control step, or
     ``policy`` handed them."""
-    observation, _ = env.reset(seed=seed)
-    plan = plan_onto_live(task, [ReplaySource.of(demo) for demo in demonstrations], observation["pointcloud"],
-                          plan_name).actions
-    if policy is not None:
-        policy.set_demonstrations(demonstrations)
-        torch.manual_seed(seed)
+    observation, plan = start_episode(env, task, demonstrations, plan_name, seed, policy)
     info = {}
     for step in range(env._max_episode_steps):
         action = episode_action(policy, plan, step, observation, task)

@@ -33,10 +33,9 @@ import json
 import numpy as np
 import torch
 
-from lerobot_instant_policy.replay.plan import REPLAY_PLANS, ReplaySource
-from lerobot_instant_policy.replay.priors import plan_onto_live
+from lerobot_instant_policy.replay.plan import REPLAY_PLANS
 from lerobot_instant_policy.sim.env import BulletTabletopConfig, BulletTabletopEnv
-from workbench.replay_episodes import episode_action, replay_policy, seed_list
+from workbench.replay_episodes import episode_action, replay_policy, seed_list, start_episode
 from workbench.scripts.demo_end_margin import scripted_demonstrations
 
 TASK = "open_box"
@@ -46,12 +45,7 @@ FELL_BACK_DEG = 2.0
 
 def run(env: BulletTabletopEnv, demonstrations, plan_name: str, seed: int, policy=None) -> dict:
     """One episode of ``seed``: the plan executed by control step (``policy`` None) or ``policy`` from it."""
-    observation, _ = env.reset(seed=seed)
-    plan = plan_onto_live(TASK, [ReplaySource.of(demo) for demo in demonstrations], observation["pointcloud"],
-                          plan_name).actions
-    if policy is not None:
-        policy.set_demonstrations(demonstrations)
-        torch.manual_seed(seed)
+    observation, plan = start_episode(env, TASK, demonstrations, plan_name, seed, policy)
     ee_lid, angle, closed, lag, info = [], [], [], None, {}
     for step in range(env._max_episode_steps):
         action = episode_action(policy, plan, step, observation, TASK)
