@@ -75,7 +75,7 @@ def summary(ee_lid: np.ndarray, angle: np.ndarray, closed: np.ndarray, lag: list
     end = max(held, int(np.argmax(angle)))
     reopened = np.flatnonzero(~closed[held:end + 1])
     if len(reopened):
-        end = held + int(reopened[0]) - 1
+        end = max(held, held + int(reopened[0]) - 1)
     rise = ee_lid[held:end + 1, 2] - ee_lid[held, 2]
     return {**row, "close_lag_mm": [round(value, 1) for value in lag],
             "grasp_z_mm": round(float(ee_lid[held, 2]) * 1e3, 1), "slip_mm": round(float(rise.max()) * 1e3, 1)}

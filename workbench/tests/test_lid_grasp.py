@@ -36,3 +36,9 @@ def test_an_episode_that_never_closes_has_no_grasp():
     ee_lid, angles, closed = _episode(0.0, [0] * 6)
     row = summary(ee_lid, angles, np.zeros_like(closed), None, False)
     assert row["slip_mm"] is None and row["grasp_z_mm"] is None and row["close_lag_mm"] is None
+
+
+def test_a_gripper_that_reopens_before_it_held_the_handle_has_not_slipped():
+    ee_lid, angles, closed = _episode(15.0, [0, 0, 0, 10, 20, 30, 40, 50, 55, 55])
+    closed[5:] = False  # closed at step 2, open again from the step it would have held
+    assert summary(ee_lid, angles, closed, [4.0, 5.0], False)["slip_mm"] == 0.0
