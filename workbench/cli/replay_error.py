@@ -7,7 +7,11 @@ demonstration sets an evaluation recorded, printed as JSON.
 ``DEMOS`` holds one LeRobot dataset per task and demonstration set, as ``lerobot-ip-eval-suite`` and
 ``lerobot-ip-eval-metaworld`` record them (``<task>-n<N>-s<seed>``). Each episode of set ``s`` is the live scene in
 turn, and the episodes of the next set of the same task (``s + 1``, the last set's the first's) are its context, as
-an evaluation hands a set to the policy: the context never holds the live scene's own demonstration.
+an evaluation hands a set to the policy: the context never holds the live scene's own demonstration. With
+``--within-set`` the context is instead the other episodes of the live scene's own set, for evaluations that
+recorded one set per task (MetaWorld's dev split):
+
+    python -m workbench.cli.replay_error outputs/results/mt10_dev/demos --within-set
 
     python -m workbench.cli.replay_error outputs/standing/validation/moved --pseudo-tasks 96
 
@@ -53,15 +57,17 @@ def demonstration_sets(demos: Path) -> dict[str, list]:
     return sets
 
 
-def replay_errors(sets: dict[str, list], plans: list[str]) -> dict:
-    """Per plan: the pooled :func:`error_quantiles` and each task's (module docstring)."""
+def replay_errors(sets: dict[str, list], plans: list[str], within_set: bool = False) -> dict:
+    """Per plan: the pooled :func:`error_quantiles` and each task's (module docstring), each live scene planned from
+    the next set's episodes or, ``within_set``, from the other episodes of its own set."""
     errors = {plan: defaultdict(list) for plan in plans}
     for task, task_sets in sets.items():
-        if len(task_sets) < 2:
-            continue
         for index, live_set in enumerate(task_sets):
-            context = task_sets[(index + 1) % len(task_sets)]
-            for live in live_set:
+            for number, live in enumerate(live_set):
+                context = (live_set[:number] + live_set[number + 1:] if within_set
+                           else task_sets[(index + 1) % len(task_sets)] if len(task_sets) > 1 else [])
+                if not context:
+                    continue
                 for plan in plans:
                     errors[plan][task].append(plan_error(context, live, plan))
     return {plan: {"all": error_quantiles([error for task in by_task.values() for error in task]),
@@ -94,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="DEMOS is a pseudo-demonstration dataset: measure its first N tasks' replay priors")
     parser.add_argument("--context", type=int, default=1,
                         help="with --pseudo-tasks, the context episodes a prior is planned from (default 1)")
+    parser.add_argument("--within-set", action="store_true",
+                        help="plan each live scene from the other episodes of its own set, not from the next set")
     args = parser.parse_args(argv)
     plans = args.plans.split(",")
     unknown = [plan for plan in plans if plan not in REPLAY_PLANS]
@@ -114,11 +122,15 @@ def main(argv: list[str] | None = None) -> int:
                           "plans": plans_errors}, indent=2))
         return 0
     sets = demonstration_sets(args.demos)
-    if not any(len(task_sets) >= 2 for task_sets in sets.values()):
+    if args.within_set and not any(len(live_set) >= 2 for task_sets in sets.values() for live_set in task_sets):
+        print(f"{PROG}: error: {args.demos} holds no demonstration set of two episodes", file=sys.stderr)
+        return 2
+    if not args.within_set and not any(len(task_sets) >= 2 for task_sets in sets.values()):
         print(f"{PROG}: error: {args.demos} holds no task with two demonstration sets", file=sys.stderr)
         return 2
     print(json.dumps({"demos": str(args.demos), "tasks": {task: len(task_sets) for task, task_sets in sets.items()},
-                      "plans": replay_errors(sets, plans)}, indent=2))
+                      "within_set": args.within_set, "plans": replay_errors(sets, plans, args.within_set)},
+                     indent=2))
     return 0
 
 

@@ -58,3 +58,23 @@ def test_pseudo_tasks_are_measured_from_their_first_episode_onto_their_last(tmp_
     assert anchored["gripper"]["translation_mm"]["p90"] < 6.0 < 30.0 < whole["gripper"]["translation_mm"]["p90"]
     assert main([str(tmp_path / "pseudo"), "--pseudo-tasks", "3"]) == 2
     assert "holds 2 pseudo-tasks" in capsys.readouterr().err
+
+
+def test_within_a_set_each_episode_is_planned_from_the_others_of_its_own_set(tmp_path, capsys):
+    """``--within-set``: one set of two episodes per task, as MetaWorld's dev split records; each episode is the live
+    scene in turn, the other its context. A folder whose sets hold one episode each is refused."""
+    dataset = create_dataset("local/put_on_duck", tmp_path / "one" / "put_on_duck-n2-s0")
+    for index, scene in enumerate(SCENES):
+        demo = carry_demo(*scene, seed=index)
+        write_episode(dataset, demo.points_world, demo.state, demo.action, demo.task)
+    dataset.finalize()
+    assert main([str(tmp_path / "one"), "--plans", "whole,anchored"]) == 2  # one set: nothing to plan from
+    capsys.readouterr()
+    assert main([str(tmp_path / "one"), "--plans", "whole,anchored", "--within-set"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    anchored, whole = result["plans"]["anchored"]["all"], result["plans"]["whole"]["all"]
+    assert result["within_set"] and anchored["plans"] == 2
+    assert anchored["gripper"]["translation_mm"]["p90"] < 6.0 < 30.0 < whole["gripper"]["translation_mm"]["p90"]
+    write_sets(tmp_path / "single")
+    assert main([str(tmp_path / "single"), "--within-set"]) == 2
+    assert "no demonstration set of two episodes" in capsys.readouterr().err
