@@ -65,9 +65,9 @@ from ..replay.timing import plan_steps
 from .bootstrap import CONFIDENCE, cluster_bootstrap
 from .checkpoints import Checkpoint, checkpoint_config, load_policy
 from .loss_curve import check_pseudo_demo_root
+from .replay_error import THIRDS, third_of
 
 DEFAULT_K, DEFAULT_N, DEFAULT_L = 4, 2, 10
-PHASES = ("first_third", "middle_third", "last_third")
 RATIOS = ("vs_holding_still", "context_gain_translation")  # own / hold and swap / own, of the translation error
 BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED = 10_000, 0
 PAIRED_KEYS = ("seed", "frames_per_task", "horizon_T", "per_task")  # what paired_ratio_difference reads of a result
@@ -82,7 +82,7 @@ class ActionErrorError(ValueError):
 class LiveFrame:
     """One evaluated frame: ``points (P, 3)`` and ``state (8,)`` of the live episode at frame ``t`` (world frame),
     ``target (T, 8)`` its actions t … t+T−1 (held at the last one), ``noise_seed`` of its DDIM generator, and
-    ``phase``, the third of the live episode that ``t`` lies in (0, 1, 2: :data:`PHASES`)."""
+    ``phase``, the third of the live episode that ``t`` lies in (0, 1, 2: :data:`THIRDS`)."""
 
     t: int
     points: np.ndarray
@@ -180,7 +180,7 @@ def summarise(errors: list[dict[str, np.ndarray]], phases: list[int] | None = No
     if phases is not None:
         phase_of_frame = one_per_frame(phases, "phase")
         summary["by_phase"] = {}
-        for index, name in enumerate(PHASES):
+        for index, name in enumerate(THIRDS):
             chosen = frame_translation[phase_of_frame == index]
             summary["by_phase"][name] = {"translation_mm": round(float(chosen.mean()), 3) if chosen.size else None,
                                          "frames": int(chosen.size)}
@@ -218,7 +218,7 @@ def load_held_out_tasks(root: str | Path, num_tasks: int, frames_per_task: int, 
         for t in chosen.tolist():
             steps = np.minimum(np.arange(t, t + horizon), live.num_frames - 1)
             noise_seed = int(np.random.SeedSequence([seed, task_number, t]).generate_state(1)[0])
-            phase = min(len(PHASES) - 1, len(PHASES) * t // live.num_frames)
+            phase = int(third_of(t, live.num_frames))
             frames.append(LiveFrame(t, live.points_world[t], live.state[t], live.action[steps], noise_seed, phase))
         held_out.append(HeldOutTask(task, episodes[-1], demos, frames, live))
     return held_out
@@ -316,7 +316,7 @@ def phase_table(own: dict, hold: dict, swap: dict) -> dict:
     translation error (mm) with the checkpoint's own demonstrations, holding still and the context swap, own / hold
     and the context gain (swap / own)."""
     table = {}
-    for name in PHASES:
+    for name in THIRDS:
         own_mm, hold_mm, swap_mm = (row["by_phase"][name]["translation_mm"] for row in (own, hold, swap))
         table[name] = {"frames": own["by_phase"][name]["frames"], "own_mm": own_mm, "hold_mm": hold_mm,
                        "swap_mm": swap_mm, "over_hold": _ratio(own_mm, hold_mm),

@@ -42,7 +42,7 @@ from ..replay.segments import gripper_change_kinds, plan_is_wrong, segment_ends
 from ..replay.timing import plan_steps
 
 BOTTLENECK_KINDS = ("gripper", "waypoint", "end")
-THIRDS = ("first_third", "middle_third", "last_third")  # of the live episode, by frame
+THIRDS = ("first_third", "middle_third", "last_third")  # of a live episode, by frame
 HALF_TURN_ABOUT_Z = np.diag([-1.0, -1.0, 1.0])  # the parallel gripper's symmetry, in the EE frame
 
 
@@ -119,6 +119,11 @@ def error_quantiles(errors: Sequence[dict]) -> dict:
     return result
 
 
+def third_of(frames: np.ndarray, num_frames: int) -> np.ndarray:
+    """The third of a live episode of ``num_frames`` frames (0, 1, 2: :data:`THIRDS`) that each of ``frames`` lies in."""
+    return np.minimum(len(THIRDS) * np.asarray(frames) // num_frames, len(THIRDS) - 1)
+
+
 def prior_ratios(errors: Sequence[dict]) -> dict:
     """The prior's chunk error over holding still (the sums over frames of :func:`chunk_errors`), over every frame
     (``all``) and per third of each live episode (:data:`THIRDS`), with the frames counted."""
@@ -127,7 +132,7 @@ def prior_ratios(errors: Sequence[dict]) -> dict:
         frames = len(error["chunks"]["prior_m"])
         prior.append(error["chunks"]["prior_m"])
         hold.append(error["chunks"]["hold_m"])
-        third.append(np.minimum(len(THIRDS) * np.arange(frames) // frames, len(THIRDS) - 1))
+        third.append(third_of(np.arange(frames), frames))
     if not prior:
         return {"frames": 0}
     prior, hold, third = np.concatenate(prior), np.concatenate(hold), np.concatenate(third)
@@ -140,4 +145,4 @@ def prior_ratios(errors: Sequence[dict]) -> dict:
     return result
 
 
-__all__ = ["BOTTLENECK_KINDS", "THIRDS", "chunk_errors", "error_quantiles", "plan_error", "prior_ratios"]
+__all__ = ["BOTTLENECK_KINDS", "THIRDS", "chunk_errors", "error_quantiles", "plan_error", "prior_ratios", "third_of"]

@@ -55,7 +55,7 @@ def test_action_error_structure_and_determinism(held_out_root, monkeypatch):
     assert (first["swap"]["translation_mm"], first["swap"]["rotation_deg"]) != (own["translation_mm"],
                                                                               own["rotation_deg"])
     assert first["context_gain"]["translation"] == round(first["swap"]["translation_mm"] / own["translation_mm"], 3)
-    assert set(first["phases"]) == set(ae.PHASES)
+    assert set(first["phases"]) == set(ae.THIRDS)
     assert sum(row["frames"] for row in first["phases"].values()) == first["frames"]
     # per task: the frames of each, pooling back to the whole; the intervals over the two tasks; paired with itself
     assert [row["task"] for row in first["per_task"]] == [row["task"] for row in again["per_task"]]
@@ -196,7 +196,7 @@ def test_phases_split_the_live_episodes_into_thirds_and_pool_back_to_the_whole(h
 def test_phase_table_compares_own_hold_and_swap_per_third():
     def row(*mm):
         return {"by_phase": {name: {"translation_mm": value, "frames": 5 if value is not None else 0}
-                             for name, value in zip(ae.PHASES, mm)}}
+                             for name, value in zip(ae.THIRDS, mm)}}
 
     table = ae.phase_table(row(10.0, 20.0, None), row(40.0, 20.0, None), row(30.0, 30.0, None))
     assert table["first_third"] == {"frames": 5, "own_mm": 10.0, "hold_mm": 40.0, "swap_mm": 30.0,

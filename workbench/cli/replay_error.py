@@ -63,9 +63,9 @@ def replay_errors(sets: dict[str, list], plans: list[str], within_set: bool = Fa
     errors = {plan: defaultdict(list) for plan in plans}
     for task, task_sets in sets.items():
         for index, live_set in enumerate(task_sets):
+            next_set = task_sets[(index + 1) % len(task_sets)] if len(task_sets) > 1 else []
             for number, live in enumerate(live_set):
-                context = (live_set[:number] + live_set[number + 1:] if within_set
-                           else task_sets[(index + 1) % len(task_sets)] if len(task_sets) > 1 else [])
+                context = live_set[:number] + live_set[number + 1:] if within_set else next_set
                 if not context:
                     continue
                 for plan in plans:

@@ -58,7 +58,7 @@ def test_every_setting_is_the_probes_on_the_same_frames_and_noise(held_out_root,
     rows = {row["K"]: row for row in swept["settings"]}
     assert (rows[1]["translation_mm"], rows[1]["rotation_deg"]) != (rows[4]["translation_mm"], rows[4]["rotation_deg"])
     assert swept["context_gain"]["translation"] == round(swept["swap"]["translation_mm"] / rows[4]["translation_mm"], 3)
-    assert set(swept["phases"]) == set(ae.PHASES)
+    assert set(swept["phases"]) == set(ae.THIRDS)
     # the default row, the swap and holding still are the installed probe's at that setting
     probe = ae.action_error(SHIPPED, held_out_root, tasks=2, frames_per_task=1, seed=0, untrained=False)
     for key in ("swap", "hold", "context_gain", "phases"):
