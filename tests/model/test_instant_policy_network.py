@@ -5,72 +5,16 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-import roma
 import torch
+from network_inputs import demo_tensors, encoded_context, random_poses, random_scenes, seeded_network, tiny_config
 from safetensors.torch import load_file, save_file
 
 import lerobot_instant_policy.model as model_package
 from lerobot_instant_policy.configuration_instant_policy import InstantPolicyConfig
 from lerobot_instant_policy.model.action_diffusion import points_in_action_frames
-from lerobot_instant_policy.model.instant_policy_network import DemoTensors, InstantPolicyNetwork
-from lerobot_instant_policy.policy.features import contract_input_features
+from lerobot_instant_policy.model.instant_policy_network import InstantPolicyNetwork
 
 pytestmark = pytest.mark.usefixtures("single_torch_thread")
-
-
-POINTS = 256  # the small encoder's first level samples 256 centroids
-
-
-def _tiny_config(**overrides) -> InstantPolicyConfig:
-    """The policy's config, as the network takes it: small preset, hidden 32, clouds of POINTS points."""
-    values = dict(hidden_dim=32, num_heads=4, pretrained_encoder=False, device="cpu",
-                  input_features=contract_input_features(POINTS))
-    return InstantPolicyConfig(**{**values, **overrides})
-
-
-def _network(seed: int = 0, **overrides) -> InstantPolicyNetwork:
-    torch.manual_seed(seed)
-    return InstantPolicyNetwork(_tiny_config(**overrides)).eval()
-
-
-def _poses(shape: tuple, generator: torch.Generator, dtype, translation: float = 0.3, angle: float = 3.0):
-    T = torch.zeros(*shape, 4, 4, dtype=dtype)
-    T[..., :3, :3] = roma.rotvec_to_rotmat(torch.randn(*shape, 3, generator=generator, dtype=dtype) * angle / 3)
-    T[..., :3, 3] = torch.randn(*shape, 3, generator=generator, dtype=dtype) * translation
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def _batch(batch=2, num_demos=2, length=3, seed=0, dtype=torch.float32, points=POINTS, horizon=8) -> dict:
-    """Synthetic scenes: random object-like blobs in world frames, EE poses near them, small relative actions."""
-    g = torch.Generator().manual_seed(seed)
-
-    def blob(*shape):
-        return torch.randn(*shape, points, 3, generator=g, dtype=dtype) * 0.05
-
-    return dict(
-        demo_points_world=blob(batch, num_demos, length) + torch.tensor([0.5, 0.0, 0.1], dtype=dtype),
-        demo_T_world_ee=_poses((batch, num_demos, length), g, dtype),
-        demo_gripper=torch.randint(0, 2, (batch, num_demos, length), generator=g).to(dtype),
-        points_world=blob(batch) + torch.tensor([0.5, 0.0, 0.1], dtype=dtype),
-        T_world_ee=_poses((batch,), g, dtype),
-        gripper=torch.randint(0, 2, (batch,), generator=g).to(dtype),
-        T_ee_actions=_poses((batch, horizon), g, dtype, translation=0.01, angle=0.03),
-        action_gripper=torch.randint(0, 2, (batch, horizon), generator=g).to(dtype),
-    )
-
-
-def _demos(network, batch) -> DemoTensors:
-    """The batch's demonstrations as the network reads them: each waypoint cloud encoded in its own EE frame (what
-    the policy's ContextEncoder computes)."""
-    positions, features = network.encode_observation(batch["demo_points_world"], batch["demo_T_world_ee"])
-    return DemoTensors(batch["demo_T_world_ee"], batch["demo_gripper"], positions, features)
-
-
-def _context(network, batch, **kwargs):
-    return network.encode_context(
-        _demos(network, batch), batch["points_world"], batch["T_world_ee"], batch["gripper"], **kwargs
-    )
 
 
 # ---------------------------------------------------------------- presets and sizes
@@ -88,9 +32,9 @@ def test_presets_have_the_documented_sizes():
 
 # ---------------------------------------------------------------- the authors' five defects
 def test_defect_1_timestep_changes_the_network_output():
-    network = _network()
-    batch = _batch()
-    context = _context(network, batch)
+    network = seeded_network()
+    batch = random_scenes()
+    context = encoded_context(network, batch)
     gripper = 2 * batch["action_gripper"] - 1
     early = network.denoise(context, batch["T_ee_actions"], gripper, torch.tensor([5, 5]))
     late = network.denoise(context, batch["T_ee_actions"], gripper, torch.tensor([90, 90]))
@@ -100,7 +44,7 @@ def test_defect_1_timestep_changes_the_network_output():
 def test_defect_2_ddim_renoises_between_steps():
     """Each DDIM iteration's next sample is the clean prediction re-noised to the next level (DDIM, η = 0), not the
     clean prediction itself; only the last iteration returns the clean prediction."""
-    diffusion = _network().diffusion
+    diffusion = seeded_network().diffusion
     flows = 0.3 * torch.randn(2, 8, 6, 7, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
     seen = []  # (timestep, the sample the predictor was given, the clean value its prediction implies)
 
@@ -127,8 +71,8 @@ def test_defect_2_ddim_renoises_between_steps():
 def test_denoising_from_a_guess_runs_the_last_steps_from_the_noised_guess(strength, timesteps):
     """SDEdit (replay_init_strength): the guess is noised to the first kept timestep with the seed's noise, only the
     last ⌈strength·K⌉ DDIM steps run, and a denoiser that predicts the guess returns it."""
-    diffusion = _network().diffusion
-    batch = _batch(dtype=torch.float64)
+    diffusion = seeded_network().diffusion
+    batch = random_scenes(dtype=torch.float64)
     guess = diffusion.normalize(batch["T_ee_actions"], batch["action_gripper"])
     T_guess, guess_gripper = diffusion.unnormalize(guess)
     seen = []
@@ -147,7 +91,7 @@ def test_denoising_from_a_guess_runs_the_last_steps_from_the_noised_guess(streng
 
 
 def test_bad_guesses_and_strengths_are_refused():
-    diffusion = _network().diffusion
+    diffusion = seeded_network().diffusion
     with pytest.raises(ValueError, match=r"strength must lie in \(0, 1\]"):
         diffusion.sample(lambda *args: None, 2, 4, initial=torch.zeros(2, 8, 7), strength=0.0)
     with pytest.raises(ValueError, match=r"initial must have shape \(B, T, 7\)"):
@@ -157,7 +101,7 @@ def test_bad_guesses_and_strengths_are_refused():
 def test_defect_3_action_frame_transform_is_R_transpose_of_p_minus_t():
     g = torch.Generator().manual_seed(0)
     points = torch.randn(1, 5, 3, generator=g, dtype=torch.float64)
-    T = _poses((1, 2), g, torch.float64)
+    T = random_poses((1, 2), g, torch.float64)
     R, t = T[0, 1, :3, :3], T[0, 1, :3, 3]
     result = points_in_action_frames(points, T)
     torch.testing.assert_close(result[0, 1], (points[0] - t) @ R)  # Rᵀ (p − t), row-vector form
@@ -168,7 +112,7 @@ def test_defect_3_action_frame_transform_is_R_transpose_of_p_minus_t():
 
 
 def test_defect_4_action_step_0_and_current_gripper_nodes_have_distinct_embeddings():
-    network = _network()
+    network = seeded_network()
     for open_state in (0.0, 1.0):
         current = network.observation_gripper_features(torch.tensor([open_state]))  # (1, K, H)
         action = network.action_gripper_features(torch.tensor([[2 * open_state - 1] * 8]), torch.tensor([0]))
@@ -185,16 +129,16 @@ def test_defect_4_action_step_0_and_current_gripper_nodes_have_distinct_embeddin
 
 def test_defect_5_no_pickle_weights_are_safetensors(tmp_path):
     """(The config is JSON: ``tests/test_instant_policy_config.py``.)"""
-    network = _network()
+    network = seeded_network()
     save_file(network.state_dict(), tmp_path / "model.safetensors")
-    other = _network(seed=1)
+    other = seeded_network(seed=1)
     other.load_state_dict(load_file(tmp_path / "model.safetensors"), strict=True)
-    batch = _batch()
+    batch = random_scenes()
     gripper = 2 * batch["action_gripper"] - 1
     timesteps = torch.tensor([10, 60])
     torch.testing.assert_close(
-        other.denoise(_context(other, batch), batch["T_ee_actions"], gripper, timesteps),
-        network.denoise(_context(network, batch), batch["T_ee_actions"], gripper, timesteps),
+        other.denoise(encoded_context(other, batch), batch["T_ee_actions"], gripper, timesteps),
+        network.denoise(encoded_context(network, batch), batch["T_ee_actions"], gripper, timesteps),
     )
     for source in Path(model_package.__file__).parent.glob("*.py"):
         text = source.read_text()
@@ -203,8 +147,8 @@ def test_defect_5_no_pickle_weights_are_safetensors(tmp_path):
 
 # ---------------------------------------------------------------- diffusion pieces
 def test_exact_flows_recover_the_clean_actions_by_svd():
-    network = _network()
-    batch = _batch(dtype=torch.float64)
+    network = seeded_network()
+    batch = random_scenes(dtype=torch.float64)
     diffusion = network.diffusion
     clean = diffusion.normalize(batch["T_ee_actions"], batch["action_gripper"])
     T_clean, gripper = diffusion.unnormalize(clean)
@@ -217,7 +161,7 @@ def test_exact_flows_recover_the_clean_actions_by_svd():
 
 
 def test_actions_beyond_the_bounds_are_clamped():
-    network = _network()
+    network = seeded_network()
     T = torch.eye(4).repeat(1, 8, 1, 1)
     T[0, :, 0, 3] = 0.5  # 50 cm, far beyond j cm
     sample = network.diffusion.normalize(T, torch.ones(1, 8))
@@ -238,21 +182,22 @@ GRAPHS = {
 
 @pytest.mark.parametrize("graph", list(GRAPHS))
 def test_moving_the_whole_world_leaves_the_relative_actions_unchanged(graph):
-    network = _network(**GRAPHS[graph]).double()
-    batch = _batch(dtype=torch.float64, seed=3)
+    network = seeded_network(**GRAPHS[graph]).double()
+    batch = random_scenes(dtype=torch.float64, seed=3)
     moved = dict(batch)
-    world = _poses((), torch.Generator().manual_seed(7), torch.float64, translation=1.0, angle=3.0)
+    world = random_poses((), torch.Generator().manual_seed(7), torch.float64, translation=1.0, angle=3.0)
     moved["demo_points_world"] = batch["demo_points_world"] @ world[:3, :3].T + world[:3, 3]
     moved["points_world"] = batch["points_world"] @ world[:3, :3].T + world[:3, 3]
     moved["demo_T_world_ee"] = world @ batch["demo_T_world_ee"]
     moved["T_world_ee"] = world @ batch["T_world_ee"]
-    actions, gripper = network.sample_actions(_context(network, batch), torch.Generator().manual_seed(1))
-    moved_actions, moved_gripper = network.sample_actions(_context(network, moved), torch.Generator().manual_seed(1))
+    actions, gripper = network.sample_actions(encoded_context(network, batch), torch.Generator().manual_seed(1))
+    moved_actions, moved_gripper = network.sample_actions(encoded_context(network, moved),
+                                                          torch.Generator().manual_seed(1))
     torch.testing.assert_close(moved_actions, actions, atol=1e-8, rtol=1e-8)
     assert torch.equal(moved_gripper, gripper)
     # The prediction does depend on the scene: moving only the live cloud changes it.
     shifted = dict(batch, points_world=batch["points_world"] + torch.tensor([0.05, 0.0, 0.0], dtype=torch.float64))
-    shifted_actions, _ = network.sample_actions(_context(network, shifted), torch.Generator().manual_seed(1))
+    shifted_actions, _ = network.sample_actions(encoded_context(network, shifted), torch.Generator().manual_seed(1))
     assert (shifted_actions - actions).abs().max() > 1e-6
 
 
@@ -268,8 +213,8 @@ def _count_calls(module: torch.nn.Module) -> list:
 
 @pytest.mark.parametrize("graph", list(GRAPHS))
 def test_context_is_computed_once_and_reused_by_every_denoising_step(graph):
-    network = _network(**GRAPHS[graph])
-    context = _context(network, _batch())
+    network = seeded_network(**GRAPHS[graph])
+    context = encoded_context(network, random_scenes())
     context_calls = _count_calls(network.context_network)
     local_calls = _count_calls(network.local_network)
     encoder_calls = _count_calls(network.geometry_encoder)
@@ -292,8 +237,8 @@ def test_several_samples_per_prediction_are_the_mean_of_as_many_noise_draws(stre
     action; the gripper follows the samples wherever they agree; the same seed gives the same result."""
     from lerobot_instant_policy.geometry.rigid_torch import mean_rigid
 
-    network = _network()
-    context = _context(network, _batch())
+    network = seeded_network()
+    context = encoded_context(network, random_scenes())
     initial = None if strength == 1.0 else torch.rand(2, 8, 7, generator=torch.Generator().manual_seed(5)) * 2 - 1
     kwargs = dict(num_inference_steps=4, strength=strength)
     actions, gripper = network.sample_actions(context, torch.Generator().manual_seed(3), initial=initial,
@@ -313,8 +258,8 @@ def test_several_samples_per_prediction_are_the_mean_of_as_many_noise_draws(stre
 
 @pytest.mark.parametrize("num_demos, length", [(1, 2), (1, 5), (3, 2), (5, 12)])
 def test_variable_number_and_length_of_demonstrations(num_demos, length):
-    network = _network()
-    context = _context(network, _batch(batch=1, num_demos=num_demos, length=length))
+    network = seeded_network()
+    context = encoded_context(network, random_scenes(batch=1, num_demos=num_demos, length=length))
     actions, gripper = network.sample_actions(context, torch.Generator().manual_seed(0), num_inference_steps=2)
     assert actions.shape == (1, 8, 4, 4) and torch.isfinite(actions).all() and gripper.shape == (1, 8)
     translation_bounds = 0.01 * torch.arange(1, 9) + 1e-6
@@ -322,29 +267,29 @@ def test_variable_number_and_length_of_demonstrations(num_demos, length):
 
 
 def test_cached_scene_nodes_and_waypoint_features_give_the_same_context():
-    network = _network()
-    batch = _batch()
-    joint = _context(network, batch)
+    network = seeded_network()
+    batch = random_scenes()
+    joint = encoded_context(network, batch)
 
     # The live cloud's scene nodes given as encode_observation computes them (a frame-encoding cache) change nothing.
     scene = network.encode_observation(batch["points_world"], batch["T_world_ee"])
-    from_cache = _context(network, batch, scene_geometry=scene)
+    from_cache = encoded_context(network, batch, scene_geometry=scene)
     torch.testing.assert_close(from_cache.current_gripper_features, joint.current_gripper_features)
 
     # σ on the demonstrations alone, handed in (a policy's per-task cache), gives the joint computation's context.
-    demos = _demos(network, batch)
+    demos = demo_tensors(network, batch)
     waypoints = network.encode_demo_waypoints(demos)
     assert waypoints.shape == (*batch["demo_gripper"].shape, 6, network.config.hidden_dim)
-    from_waypoints = _context(network, batch, demo_waypoint_features=waypoints)
+    from_waypoints = encoded_context(network, batch, demo_waypoint_features=waypoints)
     torch.testing.assert_close(from_waypoints.current_gripper_features, joint.current_gripper_features)
     with pytest.raises(ValueError, match="demo waypoint features"):
-        _context(network, batch, demo_waypoint_features=waypoints[:, :1])
+        encoded_context(network, batch, demo_waypoint_features=waypoints[:, :1])
 
 
 def test_one_tasks_demonstrations_expand_to_a_batch_without_copies():
-    network = _network()
-    batch = _batch(batch=1)
-    demos = _demos(network, batch)
+    network = seeded_network()
+    batch = random_scenes(batch=1)
+    demos = demo_tensors(network, batch)
     expanded = demos.expand(3)
     assert expanded.batch_size == 3 and expanded.scene_features.data_ptr() == demos.scene_features.data_ptr()
     with pytest.raises(ValueError, match="only a batch of one"):
@@ -354,9 +299,9 @@ def test_one_tasks_demonstrations_expand_to_a_batch_without_copies():
 @pytest.mark.parametrize("action_scene_graph", [True, False])
 def test_without_the_action_scene_graph_actions_see_the_scene_only_through_the_current_nodes(action_scene_graph):
     """The ablation ``action_scene_graph=False``: with φ's current nodes fixed, another scene changes nothing."""
-    network = _network(action_scene_graph=action_scene_graph, reencode_action_clouds=False)
-    batch = _batch()
-    context = _context(network, batch)
+    network = seeded_network(action_scene_graph=action_scene_graph, reencode_action_clouds=False)
+    batch = random_scenes()
+    context = encoded_context(network, batch)
     moved = dataclasses.replace(
         context, scene_positions_ee=context.scene_positions_ee.flip(0), scene_features=context.scene_features.flip(0)
     )
@@ -369,10 +314,10 @@ def test_without_the_action_scene_graph_actions_see_the_scene_only_through_the_c
 # ---------------------------------------------------------------- learning
 def test_loss_falls_when_overfitting_a_tiny_batch():
     torch.manual_seed(0)
-    network = InstantPolicyNetwork(_tiny_config(preset="small", hidden_dim=None, num_heads=None,
+    network = InstantPolicyNetwork(tiny_config(preset="small", hidden_dim=None, num_heads=None,
                                                 reencode_action_clouds=False)).train()
-    batch = _batch(batch=2, num_demos=1, length=3, seed=5)
-    demos = _demos(network, batch)
+    batch = random_scenes(batch=2, num_demos=1, length=3, seed=5)
+    demos = demo_tensors(network, batch)
     optimizer = torch.optim.AdamW([p for p in network.parameters() if p.requires_grad], lr=1e-3)
     generator = torch.Generator().manual_seed(0)
     losses = []
@@ -402,17 +347,17 @@ def test_loss_falls_when_overfitting_a_tiny_batch():
     ],
 )
 def test_bad_inputs_raise_clear_errors(key, change, message):
-    network = _network()
-    batch = _batch()
+    network = seeded_network()
+    batch = random_scenes()
     batch[key] = change(batch[key].clone())
     with pytest.raises(ValueError, match=message):
-        _context(network, batch)
+        encoded_context(network, batch)
 
 
 def test_bad_action_inputs_and_step_counts_raise():
-    network = _network()
-    batch = _batch()
-    context = _context(network, batch)
+    network = seeded_network()
+    batch = random_scenes()
+    context = encoded_context(network, batch)
     nan_actions = batch["T_ee_actions"].clone()
     nan_actions[0, 0, 0, 3] = float("nan")
     with pytest.raises(ValueError, match="T_ee_actions contains NaN"):
@@ -425,9 +370,9 @@ def test_bad_action_inputs_and_step_counts_raise():
 
 def test_loss_weighs_a_gripper_cross_entropy_and_sampling_reads_its_logit():
     """``loss = translation + rotation + w · BCE(gripper logit)``; at sampling the logit's sign decides the command."""
-    network = _network(gripper_loss_weight=0.25)
-    batch = _batch()
-    context = _context(network, batch)
+    network = seeded_network(gripper_loss_weight=0.25)
+    batch = random_scenes()
+    context = encoded_context(network, batch)
     losses = network.training_loss(context, batch["T_ee_actions"], batch["action_gripper"],
                                    generator=torch.Generator().manual_seed(0))
     torch.testing.assert_close(losses["loss"], losses["translation"] + losses["rotation"] + 0.25 * losses["gripper"])

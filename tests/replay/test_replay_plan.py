@@ -27,7 +27,6 @@ from lerobot_instant_policy.contract import NUM_POINTS
 from lerobot_instant_policy.data.demonstrations import Demonstration
 from lerobot_instant_policy.geometry.registration import RegistrationConfig
 from lerobot_instant_policy.replay.agreement import plans_disagreement
-from lerobot_instant_policy.replay.segments import plan_is_wrong
 from lerobot_instant_policy.replay.plan import (
     REPLAY_PLANS,
     plan_each,
@@ -36,6 +35,7 @@ from lerobot_instant_policy.replay.plan import (
     split_objects,
     transform_pose_actions,
 )
+from lerobot_instant_policy.replay.segments import plan_is_wrong
 
 CLOSE, RELEASE = 2, 7  # the frames where the demonstration's gripper closes on the mug and opens above the duck
 REGISTRATION = RegistrationConfig(yaw_only=True)

@@ -10,8 +10,8 @@ from synthetic_demos import carry_actions, carry_demo, object_pose, random_poses
 
 from lerobot_instant_policy.contract import poses_from_vectors, vectors_from_poses
 from lerobot_instant_policy.data.demonstrations import Demonstration
-from lerobot_instant_policy.replay.plan import REPLAY_REGISTRATION, best_plan, plan_each, plan_replay
 from lerobot_instant_policy.replay.agreement import path_disagreement
+from lerobot_instant_policy.replay.plan import REPLAY_REGISTRATION, best_plan, plan_each, plan_replay
 from lerobot_instant_policy.replay.trust import PlanTrust, plan_trust, trusted_strength
 
 MUG_NOW, DUCK_NOW = object_pose(0.50, 0.02, 30.0), object_pose(0.49, -0.20, -25.0)
