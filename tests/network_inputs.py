@@ -23,7 +23,10 @@ def seeded_network(seed: int = 0, **overrides) -> InstantPolicyNetwork:
     return InstantPolicyNetwork(tiny_config(**overrides)).eval()
 
 
-def random_poses(shape: tuple, generator: torch.Generator, dtype, translation: float = 0.3, angle: float = 3.0):
+def random_pose_tensors(shape: tuple, generator: torch.Generator, dtype, translation: float = 0.3,
+                        angle: float = 3.0) -> torch.Tensor:
+    """``(*shape, 4, 4)`` rigid poses from ``generator``: rotation vectors of std ``angle / 3`` rad, translations of
+    std ``translation`` m (``synthetic_demos.random_poses`` draws numpy poses uniformly instead)."""
     T = torch.zeros(*shape, 4, 4, dtype=dtype)
     T[..., :3, :3] = roma.rotvec_to_rotmat(torch.randn(*shape, 3, generator=generator, dtype=dtype) * angle / 3)
     T[..., :3, 3] = torch.randn(*shape, 3, generator=generator, dtype=dtype) * translation
@@ -40,12 +43,12 @@ def random_scenes(batch=2, num_demos=2, length=3, seed=0, dtype=torch.float32, p
 
     return dict(
         demo_points_world=blob(batch, num_demos, length) + torch.tensor([0.5, 0.0, 0.1], dtype=dtype),
-        demo_T_world_ee=random_poses((batch, num_demos, length), g, dtype),
+        demo_T_world_ee=random_pose_tensors((batch, num_demos, length), g, dtype),
         demo_gripper=torch.randint(0, 2, (batch, num_demos, length), generator=g).to(dtype),
         points_world=blob(batch) + torch.tensor([0.5, 0.0, 0.1], dtype=dtype),
-        T_world_ee=random_poses((batch,), g, dtype),
+        T_world_ee=random_pose_tensors((batch,), g, dtype),
         gripper=torch.randint(0, 2, (batch,), generator=g).to(dtype),
-        T_ee_actions=random_poses((batch, horizon), g, dtype, translation=0.01, angle=0.03),
+        T_ee_actions=random_pose_tensors((batch, horizon), g, dtype, translation=0.01, angle=0.03),
         action_gripper=torch.randint(0, 2, (batch, horizon), generator=g).to(dtype),
     )
 

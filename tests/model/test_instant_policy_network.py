@@ -6,7 +6,14 @@ from pathlib import Path
 
 import pytest
 import torch
-from network_inputs import demo_tensors, encoded_context, random_poses, random_scenes, seeded_network, tiny_config
+from network_inputs import (
+    demo_tensors,
+    encoded_context,
+    random_pose_tensors,
+    random_scenes,
+    seeded_network,
+    tiny_config,
+)
 from safetensors.torch import load_file, save_file
 
 import lerobot_instant_policy.model as model_package
@@ -101,7 +108,7 @@ def test_bad_guesses_and_strengths_are_refused():
 def test_defect_3_action_frame_transform_is_R_transpose_of_p_minus_t():
     g = torch.Generator().manual_seed(0)
     points = torch.randn(1, 5, 3, generator=g, dtype=torch.float64)
-    T = random_poses((1, 2), g, torch.float64)
+    T = random_pose_tensors((1, 2), g, torch.float64)
     R, t = T[0, 1, :3, :3], T[0, 1, :3, 3]
     result = points_in_action_frames(points, T)
     torch.testing.assert_close(result[0, 1], (points[0] - t) @ R)  # Rᵀ (p − t), row-vector form
@@ -185,7 +192,7 @@ def test_moving_the_whole_world_leaves_the_relative_actions_unchanged(graph):
     network = seeded_network(**GRAPHS[graph]).double()
     batch = random_scenes(dtype=torch.float64, seed=3)
     moved = dict(batch)
-    world = random_poses((), torch.Generator().manual_seed(7), torch.float64, translation=1.0, angle=3.0)
+    world = random_pose_tensors((), torch.Generator().manual_seed(7), torch.float64, translation=1.0, angle=3.0)
     moved["demo_points_world"] = batch["demo_points_world"] @ world[:3, :3].T + world[:3, 3]
     moved["points_world"] = batch["points_world"] @ world[:3, :3].T + world[:3, 3]
     moved["demo_T_world_ee"] = world @ batch["demo_T_world_ee"]
